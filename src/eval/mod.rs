@@ -1,0 +1,3 @@
+//! Evaluation: metrics, the oracle VLM, `grounder eval`, dataset converters.
+
+pub mod cli;

@@ -1,0 +1,19 @@
+//! grounder: 3D visual grounding as a service (the VLM-Grounder method).
+//!
+//! Data flows one way: `api` → `jobs` → `agent` → (`vlm`, `vision`, `stitch`, `geometry`,
+//! `scene`) ← `store`. `geometry` is pure; `api` knows nothing of geometry.
+
+pub mod agent;
+pub mod api;
+pub mod cli;
+pub mod config;
+pub mod eval;
+pub mod geometry;
+pub mod jobs;
+pub mod scene;
+pub mod startup;
+pub mod stitch;
+pub mod store;
+pub mod synth;
+pub mod vision;
+pub mod vlm;

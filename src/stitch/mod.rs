@@ -1,0 +1,4 @@
+//! Dynamic stitching of frames into grid images, id labels, instance annotation,
+//! and the visual-retrieval benchmark.
+
+pub mod cli;

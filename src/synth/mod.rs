@@ -1,0 +1,3 @@
+//! Synthetic posed RGB-D scenes with exact ground truth (`grounder synth`).
+
+pub mod cli;
