@@ -28,6 +28,8 @@ pub enum Command {
     Eval(crate::eval::cli::EvalArgs),
     /// Convert ScanRefer / Nr3D / ScanNet ground truth into grounder annotations.
     Convert(crate::eval::cli::ConvertArgs),
+    /// Print the service's OpenAPI document (YAML).
+    Openapi,
 }
 
 /// Parse arguments, run the subcommand, print a one-line error on failure.
@@ -51,6 +53,10 @@ pub fn main() -> ExitCode {
             Command::OracleVlm(a) => crate::eval::cli::run_oracle_vlm(a).await,
             Command::Eval(a) => crate::eval::cli::run_eval(a).await,
             Command::Convert(a) => crate::eval::cli::run_convert(a),
+            Command::Openapi => {
+                print!("{}", crate::api::openapi::yaml());
+                Ok(())
+            }
         }
     });
     match result {

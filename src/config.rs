@@ -1,16 +1,106 @@
-//! Service configuration: flags, environment variables and an optional TOML file.
+//! Service configuration: flags and environment variables, with an optional TOML file
+//! for everything else. Precedence: flag > environment > file > default.
 
-use std::path::PathBuf;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, env = "GROUNDER_ADDR", default_value = "127.0.0.1:8080")]
-    pub addr: String,
+    #[arg(long, env = "GROUNDER_ADDR")]
+    pub addr: Option<String>,
     /// Directory holding the database and scene files.
-    #[arg(long, env = "GROUNDER_DATA_DIR", default_value = "./data")]
-    pub data_dir: PathBuf,
-    /// Optional TOML configuration file.
+    #[arg(long, env = "GROUNDER_DATA_DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Optional TOML configuration file (keys as in `Config`).
     #[arg(long, env = "GROUNDER_CONFIG")]
     pub config: Option<PathBuf>,
+}
+
+/// Everything the service can be configured with.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    pub addr: String,
+    pub data_dir: PathBuf,
+    /// Largest accepted upload body in bytes (413 above).
+    pub max_upload_bytes: u64,
+    /// Largest total unpacked size of an archive in bytes.
+    pub max_unpacked_bytes: u64,
+    /// Most entries an archive may hold.
+    pub max_archive_files: u64,
+    /// Concurrent grounding jobs.
+    pub workers: usize,
+    /// Attempts before a job that keeps dying with the process is failed.
+    pub max_attempts: i64,
+    /// The pipeline the workers run: "vlm" (the method) or "test:delay_ms=N" (testing).
+    pub pipeline: String,
+    /// Detector used to index uploaded scenes ("none" to skip indexing).
+    pub detector: String,
+    /// Segmenter used by the pipeline.
+    pub segmenter: String,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            addr: "127.0.0.1:8080".into(),
+            data_dir: PathBuf::from("./data"),
+            max_upload_bytes: 2 << 30,
+            max_unpacked_bytes: 8 << 30,
+            max_archive_files: 200_000,
+            workers: 2,
+            max_attempts: 3,
+            pipeline: "vlm".into(),
+            detector: "centernet".into(),
+            segmenter: "depth".into(),
+        }
+    }
+}
+
+impl Config {
+    /// Resolve the configuration from the command line, environment and file.
+    pub fn load(args: &ServeArgs) -> anyhow::Result<Self> {
+        let mut cfg = match &args.config {
+            Some(path) => Self::from_file(path)?,
+            None => Self::default(),
+        };
+        if let Some(a) = &args.addr {
+            cfg.addr = a.clone();
+        }
+        if let Some(d) = &args.data_dir {
+            cfg.data_dir = d.clone();
+        }
+        cfg.apply_env()?;
+        Ok(cfg)
+    }
+
+    fn from_file(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("cannot read config file {}: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
+    }
+
+    fn apply_env(&mut self) -> anyhow::Result<()> {
+        fn num<T: std::str::FromStr>(key: &str, into: &mut T) -> anyhow::Result<()> {
+            if let Ok(v) = std::env::var(key) {
+                *into = v.parse().map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
+            }
+            Ok(())
+        }
+        if let Ok(v) = std::env::var("GROUNDER_PIPELINE") {
+            self.pipeline = v;
+        }
+        if let Ok(v) = std::env::var("GROUNDER_DETECTOR") {
+            self.detector = v;
+        }
+        if let Ok(v) = std::env::var("GROUNDER_SEGMENTER") {
+            self.segmenter = v;
+        }
+        num("GROUNDER_WORKERS", &mut self.workers)?;
+        num("GROUNDER_MAX_UPLOAD_BYTES", &mut self.max_upload_bytes)?;
+        num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;
+        num("GROUNDER_MAX_ARCHIVE_FILES", &mut self.max_archive_files)?;
+        Ok(())
+    }
 }

@@ -1,1 +1,76 @@
-//! api
+//! HTTP API: axum routes, problem+json errors, OpenAPI. Knows nothing of geometry.
+
+pub mod error;
+pub mod health;
+pub mod jobs;
+pub mod openapi;
+pub mod scenes;
+
+use axum::extract::{MatchedPath, Request, State};
+use axum::middleware::Next;
+use axum::response::Response;
+use axum::routing::{get, post};
+use axum::Router;
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::config::Config;
+use crate::jobs::JobSystem;
+use crate::metrics::{HttpLabels, Metrics};
+use crate::store::Store;
+
+pub use error::{ApiError, Problem};
+
+/// Readiness of optional components, filled at start-up.
+#[derive(Debug, Clone, Default)]
+pub struct Readiness {
+    /// Problems that make the service not ready (e.g. a missing model file).
+    pub problems: Vec<String>,
+}
+
+/// Shared state of every handler.
+#[derive(Clone)]
+pub struct AppState {
+    pub cfg: Arc<Config>,
+    pub store: Store,
+    pub jobs: JobSystem,
+    pub metrics: Arc<Metrics>,
+    pub readiness: Arc<std::sync::RwLock<Readiness>>,
+    /// Hook run after a scene is stored (starts detector indexing); returns the initial status.
+    pub on_scene_stored: Arc<dyn Fn(String) + Send + Sync>,
+}
+
+/// All routes.
+pub fn router(state: AppState) -> Router {
+    Router::new()
+        .route("/v1/scenes", post(scenes::upload).get(scenes::list))
+        .route("/v1/scenes/{id}", get(scenes::get).delete(scenes::delete))
+        .route("/v1/jobs", post(jobs::create).get(jobs::list))
+        .route("/v1/jobs/{id}", get(jobs::get))
+        .route("/v1/jobs/{id}/cancel", post(jobs::cancel))
+        .route("/v1/jobs/{id}/artifacts/{name}", get(jobs::artifact))
+        .route("/healthz", get(health::healthz))
+        .route("/readyz", get(health::readyz))
+        .route("/metrics", get(health::metrics))
+        .route("/openapi.yaml", get(openapi::serve_yaml))
+        .fallback(fallback)
+        .layer(axum::middleware::from_fn_with_state(state.clone(), track_http))
+        .with_state(state)
+}
+
+async fn fallback(req: Request) -> ApiError {
+    ApiError::new(axum::http::StatusCode::NOT_FOUND, "route_not_found", format!("no route for {} {}", req.method(), req.uri().path()))
+}
+
+async fn track_http(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let started = Instant::now();
+    let method = req.method().to_string();
+    let route = req.extensions().get::<MatchedPath>().map(|m| m.as_str().to_string()).unwrap_or_else(|| "unmatched".into());
+    let resp = next.run(req).await;
+    state
+        .metrics
+        .http_duration
+        .get_or_create(&HttpLabels { method, route, status: resp.status().as_u16() })
+        .observe(started.elapsed().as_secs_f64());
+    resp
+}

@@ -1,1 +1,156 @@
-//! jobs
+//! The job system: a persistent queue in SQLite, a worker pool, cancellation, traces.
+//! The pipeline itself is behind the [`Grounder`] trait.
+
+pub mod indexing;
+pub mod ingest;
+pub mod test_grounder;
+pub mod worker;
+
+use futures::future::BoxFuture;
+use serde::Serialize;
+use serde_json::Value;
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use tokio_util::sync::CancellationToken;
+
+use crate::geometry::Aabb;
+use crate::scene::SceneData;
+use crate::store::Store;
+
+pub use worker::{JobSystem, WorkerConfig};
+
+/// What a successful grounding returns.
+#[derive(Debug, Clone, Serialize)]
+pub struct GroundingOutput {
+    #[serde(rename = "box")]
+    pub bbox: Aabb,
+    /// Extra result fields (chosen image id, detection, ...).
+    #[serde(flatten)]
+    pub extra: serde_json::Map<String, Value>,
+}
+
+/// A failure with a stable code and a sentence for people.
+#[derive(Debug, Clone, Serialize, thiserror::Error)]
+#[error("{code}: {detail}")]
+pub struct JobFailure {
+    pub code: String,
+    pub detail: String,
+}
+
+impl JobFailure {
+    pub fn new(code: &str, detail: impl Into<String>) -> Self {
+        Self { code: code.to_string(), detail: detail.into() }
+    }
+}
+
+/// Writes a job's trace steps and artifacts.
+#[derive(Debug, Clone)]
+pub struct TraceSink {
+    store: Store,
+    job_id: String,
+    artifact_dir: PathBuf,
+}
+
+impl TraceSink {
+    pub fn new(store: Store, job_id: String, artifact_dir: PathBuf) -> Self {
+        Self { store, job_id, artifact_dir }
+    }
+
+    /// Append a step (an object; `step` is added). Trace failures are logged, not fatal.
+    pub async fn step(&self, step: &str, data: Value) {
+        if let Err(e) = self.store.append_trace(&self.job_id, step, &data).await {
+            tracing::warn!(job = %self.job_id, "cannot write trace step {step}: {e}");
+        }
+    }
+
+    /// Store an artifact (e.g. a stitched JPEG) and return its URL path.
+    pub async fn artifact(&self, name: &str, bytes: Vec<u8>) -> Result<String, JobFailure> {
+        let safe = name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.')) && !name.starts_with('.');
+        if !safe {
+            return Err(JobFailure::new("internal", format!("invalid artifact name {name:?}")));
+        }
+        let dir = self.artifact_dir.clone();
+        let path = dir.join(name);
+        tokio::task::spawn_blocking(move || {
+            std::fs::create_dir_all(&dir)?;
+            std::fs::write(&path, bytes)
+        })
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("artifact writer failed: {e}")))?
+        .map_err(|e| JobFailure::new("storage_error", format!("cannot write artifact {name}: {e}")))?;
+        Ok(format!("/v1/jobs/{}/artifacts/{name}", self.job_id))
+    }
+
+    pub fn job_id(&self) -> &str {
+        &self.job_id
+    }
+}
+
+/// Everything a pipeline run gets.
+pub struct JobContext {
+    pub job_id: String,
+    pub query: String,
+    pub scene: Arc<SceneData>,
+    pub store: Store,
+    pub trace: TraceSink,
+    pub cancel: CancellationToken,
+}
+
+/// The grounding pipeline as the worker sees it.
+pub trait Grounder: Send + Sync + 'static {
+    fn ground(&self, ctx: JobContext) -> BoxFuture<'_, Result<GroundingOutput, JobFailure>>;
+}
+
+/// Scenes loaded for jobs, kept decoded between jobs (small LRU by insertion).
+#[derive(Default)]
+pub struct SceneCache {
+    inner: Mutex<Vec<(String, Arc<SceneData>)>>,
+}
+
+impl SceneCache {
+    const CAPACITY: usize = 4;
+
+    pub fn get(&self, id: &str) -> Option<Arc<SceneData>> {
+        let g = self.inner.lock().ok()?;
+        g.iter().find(|(k, _)| k == id).map(|(_, v)| v.clone())
+    }
+
+    pub fn put(&self, id: &str, scene: Arc<SceneData>) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.retain(|(k, _)| k != id);
+            g.push((id.to_string(), scene));
+            if g.len() > Self::CAPACITY {
+                g.remove(0);
+            }
+        }
+    }
+
+    pub fn remove(&self, id: &str) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.retain(|(k, _)| k != id);
+        }
+    }
+}
+
+/// Tokens of the jobs running in this process.
+#[derive(Default)]
+pub struct RunningJobs {
+    inner: Mutex<HashMap<String, CancellationToken>>,
+}
+
+impl RunningJobs {
+    pub fn insert(&self, id: &str, t: CancellationToken) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.insert(id.to_string(), t);
+        }
+    }
+    pub fn remove(&self, id: &str) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.remove(id);
+        }
+    }
+    pub fn cancel(&self, id: &str) -> bool {
+        self.inner.lock().ok().and_then(|g| g.get(id).map(|t| t.cancel())).is_some()
+    }
+}

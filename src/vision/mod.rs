@@ -13,3 +13,4 @@ pub struct Detection {
 }
 
 pub mod cli;
+pub mod index;

@@ -1,0 +1,235 @@
+//! Job rows and their traces: the persistent queue.
+
+use serde::Serialize;
+use serde_json::Value;
+use sqlx::Row;
+
+use super::{now_rfc3339, Store, StoreError};
+
+/// Lifecycle of a job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum JobStatus {
+    Queued,
+    Running,
+    Succeeded,
+    Failed,
+    Canceled,
+}
+
+impl JobStatus {
+    pub const ALL: [JobStatus; 5] = [JobStatus::Queued, JobStatus::Running, JobStatus::Succeeded, JobStatus::Failed, JobStatus::Canceled];
+
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            JobStatus::Queued => "queued",
+            JobStatus::Running => "running",
+            JobStatus::Succeeded => "succeeded",
+            JobStatus::Failed => "failed",
+            JobStatus::Canceled => "canceled",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|x| x.as_str() == s)
+    }
+
+    pub fn is_terminal(&self) -> bool {
+        matches!(self, JobStatus::Succeeded | JobStatus::Failed | JobStatus::Canceled)
+    }
+}
+
+/// A job row.
+#[derive(Debug, Clone)]
+pub struct JobRecord {
+    pub seq: i64,
+    pub id: String,
+    pub scene_id: String,
+    pub query: String,
+    pub status: JobStatus,
+    pub attempts: i64,
+    pub created_at: String,
+    pub started_at: Option<String>,
+    pub finished_at: Option<String>,
+    pub error: Option<Value>,
+    pub result: Option<Value>,
+}
+
+/// Filters for listing jobs.
+#[derive(Debug, Clone, Default)]
+pub struct ListJobs {
+    pub scene_id: Option<String>,
+    pub status: Option<JobStatus>,
+    pub limit: i64,
+    /// Only jobs with seq below this (newest first pagination).
+    pub before_seq: Option<i64>,
+}
+
+fn parse_json(s: Option<String>) -> Option<Value> {
+    s.and_then(|t| serde_json::from_str(&t).ok())
+}
+
+fn job_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<JobRecord, StoreError> {
+    let status: String = r.try_get("status")?;
+    Ok(JobRecord {
+        seq: r.try_get("seq")?,
+        id: r.try_get("id")?,
+        scene_id: r.try_get("scene_id")?,
+        query: r.try_get("query")?,
+        status: JobStatus::parse(&status).ok_or_else(|| StoreError::Corrupt(format!("job status {status:?}")))?,
+        attempts: r.try_get("attempts")?,
+        created_at: r.try_get("created_at")?,
+        started_at: r.try_get("started_at")?,
+        finished_at: r.try_get("finished_at")?,
+        error: parse_json(r.try_get("error")?),
+        result: parse_json(r.try_get("result")?),
+    })
+}
+
+const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result";
+
+impl Store {
+    pub async fn create_job(&self, id: &str, scene_id: &str, query: &str) -> Result<JobRecord, StoreError> {
+        sqlx::query("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?)")
+            .bind(id)
+            .bind(scene_id)
+            .bind(query)
+            .bind(now_rfc3339())
+            .execute(&self.pool)
+            .await?;
+        self.get_job(id).await?.ok_or_else(|| StoreError::Corrupt("job vanished after insert".into()))
+    }
+
+    pub async fn get_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
+        let row = sqlx::query(&format!("SELECT {JOB_COLS} FROM jobs WHERE id = ?")).bind(id).fetch_optional(&self.pool).await?;
+        row.as_ref().map(job_from_row).transpose()
+    }
+
+    /// Newest first; `before_seq` continues a previous page.
+    pub async fn list_jobs(&self, q: &ListJobs) -> Result<Vec<JobRecord>, StoreError> {
+        let rows = sqlx::query(&format!(
+            "SELECT {JOB_COLS} FROM jobs WHERE (?1 IS NULL OR scene_id = ?1) AND (?2 IS NULL OR status = ?2) \
+             AND (?3 IS NULL OR seq < ?3) ORDER BY seq DESC LIMIT ?4"
+        ))
+        .bind(&q.scene_id)
+        .bind(q.status.map(|s| s.as_str()))
+        .bind(q.before_seq)
+        .bind(q.limit)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(job_from_row).collect()
+    }
+
+    /// Atomically take the oldest queued job whose scene is ready; marks it running,
+    /// counts the attempt and clears any trace of an earlier attempt.
+    pub async fn claim_next_job(&self) -> Result<Option<JobRecord>, StoreError> {
+        let mut tx = self.pool.begin().await?;
+        let row = sqlx::query(&format!(
+            "UPDATE jobs SET status = 'running', attempts = attempts + 1, started_at = ?1 \
+             WHERE seq = (SELECT j.seq FROM jobs j JOIN scenes s ON s.id = j.scene_id \
+                          WHERE j.status = 'queued' AND s.status = 'ready' ORDER BY j.seq LIMIT 1) \
+             RETURNING {JOB_COLS}"
+        ))
+        .bind(now_rfc3339())
+        .fetch_optional(&mut *tx)
+        .await?;
+        let Some(row) = row else {
+            tx.commit().await?;
+            return Ok(None);
+        };
+        let job = job_from_row(&row)?;
+        sqlx::query("DELETE FROM job_trace WHERE job_id = ?").bind(&job.id).execute(&mut *tx).await?;
+        tx.commit().await?;
+        Ok(Some(job))
+    }
+
+    /// Finish a running job; only a job still `running` is changed (a cancel wins).
+    pub async fn finish_job(&self, id: &str, status: JobStatus, result: Option<&Value>, error: Option<&Value>) -> Result<bool, StoreError> {
+        let r = sqlx::query("UPDATE jobs SET status = ?, result = ?, error = ?, finished_at = ? WHERE id = ? AND status = 'running'")
+            .bind(status.as_str())
+            .bind(result.map(|v| v.to_string()))
+            .bind(error.map(|v| v.to_string()))
+            .bind(now_rfc3339())
+            .bind(id)
+            .execute(&self.pool)
+            .await?;
+        Ok(r.rows_affected() == 1)
+    }
+
+    /// Put a running job back in the queue (process shutting down); the attempt is not counted.
+    pub async fn requeue_job(&self, id: &str) -> Result<(), StoreError> {
+        sqlx::query("UPDATE jobs SET status = 'queued', attempts = MAX(attempts - 1, 0), started_at = NULL WHERE id = ? AND status = 'running'")
+            .bind(id)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    /// Cancel a job in any non-terminal state. Returns the job after the change, or None
+    /// when it does not exist.
+    pub async fn cancel_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
+        sqlx::query(
+            "UPDATE jobs SET status = 'canceled', cancel_requested = 1, finished_at = ?, \
+             error = '{\"code\":\"canceled\",\"detail\":\"canceled by request\"}' WHERE id = ? AND status IN ('queued','running')",
+        )
+        .bind(now_rfc3339())
+        .bind(id)
+        .execute(&self.pool)
+        .await?;
+        self.get_job(id).await
+    }
+
+    /// At start-up: jobs left `running` by a dead process go back to the queue, or fail
+    /// when they have used `max_attempts`. Returns (requeued, failed).
+    pub async fn recover_jobs(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
+        let failed = sqlx::query(
+            "UPDATE jobs SET status = 'failed', finished_at = ?, \
+             error = json_object('code','too_many_attempts','detail', 'the job was interrupted ' || attempts || ' times while running and was given up') \
+             WHERE status = 'running' AND attempts >= ?",
+        )
+        .bind(now_rfc3339())
+        .bind(max_attempts)
+        .execute(&self.pool)
+        .await?
+        .rows_affected();
+        let requeued = sqlx::query("UPDATE jobs SET status = 'queued', started_at = NULL WHERE status = 'running'")
+            .execute(&self.pool)
+            .await?
+            .rows_affected();
+        Ok((requeued, failed))
+    }
+
+    pub async fn count_jobs_by_status(&self) -> Result<Vec<(String, i64)>, StoreError> {
+        let rows = sqlx::query("SELECT status, COUNT(*) AS n FROM jobs GROUP BY status").fetch_all(&self.pool).await?;
+        rows.iter().map(|r| Ok((r.try_get("status")?, r.try_get("n")?))).collect()
+    }
+
+    /// Append one step to a job's trace.
+    pub async fn append_trace(&self, job_id: &str, step: &str, data: &Value) -> Result<(), StoreError> {
+        sqlx::query("INSERT INTO job_trace (job_id, seq, step, data) VALUES (?1, (SELECT COALESCE(MAX(seq), -1) + 1 FROM job_trace WHERE job_id = ?1), ?2, ?3)")
+            .bind(job_id)
+            .bind(step)
+            .bind(data.to_string())
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    pub async fn get_trace(&self, job_id: &str) -> Result<Vec<Value>, StoreError> {
+        let rows = sqlx::query("SELECT step, data FROM job_trace WHERE job_id = ? ORDER BY seq").bind(job_id).fetch_all(&self.pool).await?;
+        rows.iter()
+            .map(|r| {
+                let step: String = r.try_get("step")?;
+                let data: String = r.try_get("data")?;
+                let mut v: Value = serde_json::from_str(&data).unwrap_or(Value::Null);
+                match v.as_object_mut() {
+                    Some(o) => {
+                        o.insert("step".into(), Value::String(step));
+                    }
+                    None => v = serde_json::json!({"step": step, "data": v}),
+                }
+                Ok(v)
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,299 @@
+//! Scene, frame and detection rows.
+
+use nalgebra::Matrix4;
+use serde::Serialize;
+use sqlx::Row;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use super::{now_rfc3339, Store, StoreError};
+use crate::geometry::{FrameCamera, Intrinsics};
+use crate::scene::import::ImportedScene;
+use crate::scene::model::{decompress_depth, pose_from_blob, pose_to_blob};
+use crate::scene::{FrameData, SceneData};
+use crate::vision::Detection;
+
+/// A scene as listed over the API.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct SceneRecord {
+    pub id: String,
+    /// Folder name of the uploaded scene.
+    pub name: String,
+    /// `indexing`, `ready` or `failed`.
+    pub status: String,
+    /// `scannet` (FORMATS §1a) or `posed` (§1b).
+    pub layout: String,
+    /// Number of frames.
+    pub frames: i64,
+    /// Names of frames whose pose is not finite; they are never used.
+    pub unusable_frames: Vec<String>,
+    /// [width, height] of the colour images.
+    pub color_size: [i64; 2],
+    /// [width, height] of the depth images.
+    pub depth_size: [i64; 2],
+    pub has_instance_masks: bool,
+    /// Detector indexing progress.
+    pub index: IndexProgress,
+    pub error: Option<String>,
+    pub created_at: String,
+}
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct IndexProgress {
+    pub detector: Option<String>,
+    pub done: i64,
+    pub total: i64,
+}
+
+fn json_of<T: Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_else(|_| "null".into())
+}
+
+fn matrix_json(m: &Matrix4<f64>) -> String {
+    let v: Vec<f64> = (0..16).map(|i| m[(i / 4, i % 4)]).collect();
+    json_of(&v)
+}
+
+impl Store {
+    /// Insert a validated scene and its frames in one transaction.
+    pub async fn insert_scene(&self, id: &str, scene: &ImportedScene, status: &str, detector: Option<&str>) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        let usable = scene.frames.iter().filter(|f| f.usable).count() as i64;
+        sqlx::query(
+            "INSERT INTO scenes (id, name, layout, status, color_width, color_height, depth_width, depth_height, \
+             color_k, depth_k, axis_align, has_instances, frame_count, unusable_count, index_detector, index_done, index_total, created_at) \
+             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?)",
+        )
+        .bind(id)
+        .bind(&scene.name)
+        .bind(scene.layout.as_str())
+        .bind(status)
+        .bind(scene.color.width as i64)
+        .bind(scene.color.height as i64)
+        .bind(scene.depth_size.0 as i64)
+        .bind(scene.depth_size.1 as i64)
+        .bind(json_of(&scene.color))
+        .bind(scene.depth.as_ref().map(json_of))
+        .bind(scene.axis_align.as_ref().map(matrix_json))
+        .bind(scene.frames.iter().any(|f| f.instance_path.is_some()) as i64)
+        .bind(scene.frames.len() as i64)
+        .bind(scene.frames.len() as i64 - usable)
+        .bind(detector)
+        .bind(if detector.is_some() { usable } else { 0 })
+        .bind(now_rfc3339())
+        .execute(&mut *tx)
+        .await?;
+        for f in &scene.frames {
+            sqlx::query("INSERT INTO frames (scene_id, idx, name, pose, usable, depth) VALUES (?,?,?,?,?,?)")
+                .bind(id)
+                .bind(f.idx as i64)
+                .bind(&f.name)
+                .bind(pose_to_blob(&f.pose))
+                .bind(f.usable as i64)
+                .bind(&f.depth_blob)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        Ok(())
+    }
+
+    fn scene_from_row(row: &sqlx::sqlite::SqliteRow, unusable: Vec<String>) -> Result<SceneRecord, StoreError> {
+        Ok(SceneRecord {
+            id: row.try_get("id")?,
+            name: row.try_get("name")?,
+            status: row.try_get("status")?,
+            layout: row.try_get("layout")?,
+            frames: row.try_get("frame_count")?,
+            unusable_frames: unusable,
+            color_size: [row.try_get("color_width")?, row.try_get("color_height")?],
+            depth_size: [row.try_get("depth_width")?, row.try_get("depth_height")?],
+            has_instance_masks: row.try_get::<i64, _>("has_instances")? != 0,
+            index: IndexProgress {
+                detector: row.try_get("index_detector")?,
+                done: row.try_get("index_done")?,
+                total: row.try_get("index_total")?,
+            },
+            error: row.try_get("error")?,
+            created_at: row.try_get("created_at")?,
+        })
+    }
+
+    async fn unusable_names(&self, id: &str) -> Result<Vec<String>, StoreError> {
+        let rows = sqlx::query("SELECT name FROM frames WHERE scene_id = ? AND usable = 0 ORDER BY idx").bind(id).fetch_all(&self.pool).await?;
+        rows.iter().map(|r| r.try_get::<String, _>("name").map_err(StoreError::from)).collect()
+    }
+
+    pub async fn get_scene(&self, id: &str) -> Result<Option<SceneRecord>, StoreError> {
+        let Some(row) = sqlx::query("SELECT * FROM scenes WHERE id = ?").bind(id).fetch_optional(&self.pool).await? else {
+            return Ok(None);
+        };
+        let unusable = self.unusable_names(id).await?;
+        Ok(Some(Self::scene_from_row(&row, unusable)?))
+    }
+
+    pub async fn list_scenes(&self) -> Result<Vec<SceneRecord>, StoreError> {
+        let rows = sqlx::query("SELECT * FROM scenes ORDER BY created_at, id").fetch_all(&self.pool).await?;
+        let mut out = Vec::with_capacity(rows.len());
+        for row in &rows {
+            let id: String = row.try_get("id")?;
+            out.push(Self::scene_from_row(row, self.unusable_names(&id).await?)?);
+        }
+        Ok(out)
+    }
+
+    /// Delete a scene unless a job on it is queued or running; returns false when refused.
+    pub async fn delete_scene_if_idle(&self, id: &str) -> Result<bool, StoreError> {
+        let mut tx = self.pool.begin().await?;
+        let busy: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'")
+            .bind(id)
+            .fetch_one(&mut *tx)
+            .await?;
+        if busy > 0 {
+            return Ok(false);
+        }
+        sqlx::query("UPDATE jobs SET status = 'canceled', finished_at = ?, error = ? WHERE scene_id = ? AND status = 'queued'")
+            .bind(now_rfc3339())
+            .bind(r#"{"code":"scene_deleted","detail":"the scene was deleted before the job ran"}"#)
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
+        sqlx::query("DELETE FROM scenes WHERE id = ?").bind(id).execute(&mut *tx).await?;
+        tx.commit().await?;
+        Ok(true)
+    }
+
+    pub async fn set_scene_status(&self, id: &str, status: &str, error: Option<&str>) -> Result<(), StoreError> {
+        sqlx::query("UPDATE scenes SET status = ?, error = ? WHERE id = ?").bind(status).bind(error).bind(id).execute(&self.pool).await?;
+        Ok(())
+    }
+
+    /// Scenes left `indexing` by a previous process (indexing is restarted for them).
+    pub async fn scenes_with_status(&self, status: &str) -> Result<Vec<String>, StoreError> {
+        Ok(sqlx::query_scalar("SELECT id FROM scenes WHERE status = ?").bind(status).fetch_all(&self.pool).await?)
+    }
+
+    /// Replace a frame's cached detections and bump the scene's indexing progress.
+    pub async fn put_detections(&self, scene_id: &str, detector: &str, frame_idx: usize, dets: &[Detection]) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
+            .bind(scene_id)
+            .bind(detector)
+            .bind(frame_idx as i64)
+            .execute(&mut *tx)
+            .await?;
+        for d in dets {
+            sqlx::query("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)")
+                .bind(scene_id)
+                .bind(detector)
+                .bind(frame_idx as i64)
+                .bind(&d.label)
+                .bind(d.score as f64)
+                .bind(d.bbox[0] as f64)
+                .bind(d.bbox[1] as f64)
+                .bind(d.bbox[2] as f64)
+                .bind(d.bbox[3] as f64)
+                .execute(&mut *tx)
+                .await?;
+        }
+        sqlx::query("UPDATE scenes SET index_done = index_done + 1 WHERE id = ?").bind(scene_id).execute(&mut *tx).await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Reset indexing progress (before (re-)indexing with `detector`).
+    pub async fn reset_index(&self, scene_id: &str, detector: &str, total: usize) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ?").bind(scene_id).bind(detector).execute(&mut *tx).await?;
+        sqlx::query("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ?")
+            .bind(detector)
+            .bind(total as i64)
+            .bind(scene_id)
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// All cached detections of a scene for one detector, by frame index.
+    pub async fn detections(&self, scene_id: &str, detector: &str) -> Result<BTreeMap<usize, Vec<Detection>>, StoreError> {
+        let rows = sqlx::query("SELECT frame_idx, label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? ORDER BY frame_idx, score DESC")
+            .bind(scene_id)
+            .bind(detector)
+            .fetch_all(&self.pool)
+            .await?;
+        let mut out: BTreeMap<usize, Vec<Detection>> = BTreeMap::new();
+        for r in rows {
+            let idx: i64 = r.try_get("frame_idx")?;
+            let f = |k: &str| r.try_get::<f64, _>(k).map(|v| v as f32);
+            out.entry(idx as usize).or_default().push(Detection {
+                label: r.try_get("label")?,
+                score: f("score")?,
+                bbox: [f("x1")?, f("y1")?, f("x2")?, f("y2")?],
+            });
+        }
+        Ok(out)
+    }
+
+    /// Load a scene for the pipeline: cameras and decoded depth for every frame.
+    pub async fn load_scene(&self, id: &str, scene_dir: &Path) -> Result<Option<SceneData>, StoreError> {
+        let Some(s) = sqlx::query("SELECT * FROM scenes WHERE id = ?").bind(id).fetch_optional(&self.pool).await? else {
+            return Ok(None);
+        };
+        let corrupt = |what: &str| StoreError::Corrupt(format!("scene {id}: {what}"));
+        let color: Intrinsics = serde_json::from_str(&s.try_get::<String, _>("color_k")?).map_err(|_| corrupt("colour intrinsics"))?;
+        let depth_k: Option<Intrinsics> = match s.try_get::<Option<String>, _>("depth_k")? {
+            Some(t) => Some(serde_json::from_str(&t).map_err(|_| corrupt("depth intrinsics"))?),
+            None => None,
+        };
+        let align = match s.try_get::<Option<String>, _>("axis_align")? {
+            Some(t) => {
+                let v: Vec<f64> = serde_json::from_str(&t).map_err(|_| corrupt("axis alignment"))?;
+                if v.len() != 16 {
+                    return Err(corrupt("axis alignment"));
+                }
+                Some(Matrix4::from_row_slice(&v))
+            }
+            None => None,
+        };
+        let dw: i64 = s.try_get("depth_width")?;
+        let dh: i64 = s.try_get("depth_height")?;
+        let rows = sqlx::query("SELECT idx, name, pose, usable, depth FROM frames WHERE scene_id = ? ORDER BY idx").bind(id).fetch_all(&self.pool).await?;
+        let mut raw = Vec::with_capacity(rows.len());
+        for r in rows {
+            raw.push((r.try_get::<i64, _>("idx")?, r.try_get::<String, _>("name")?, r.try_get::<Vec<u8>, _>("pose")?, r.try_get::<i64, _>("usable")? != 0, r.try_get::<Vec<u8>, _>("depth")?));
+        }
+        let scene_dir_owned = scene_dir.to_path_buf();
+        let align_m = align.unwrap_or_else(Matrix4::identity);
+        let frames = tokio::task::spawn_blocking(move || {
+            use rayon::prelude::*;
+            let scene_dir = scene_dir_owned;
+            raw.into_par_iter()
+                .map(|(idx, name, pose, usable, depth)| {
+                    let pose = pose_from_blob(&pose).ok_or_else(|| format!("frame {name} pose"))?;
+                    let depth = decompress_depth(&depth, dw as u32, dh as u32).ok_or_else(|| format!("frame {name} depth"))?;
+                    let inst = scene_dir.join("instance").join(format!("{idx}.png"));
+                    Ok(FrameData {
+                        idx: idx as usize,
+                        name,
+                        usable,
+                        camera: FrameCamera { color, depth: depth_k, depth_size: (dw as u32, dh as u32), pose, align: align_m },
+                        depth: Arc::new(depth),
+                        color_path: scene_dir.join("color").join(format!("{idx}.jpg")),
+                        instance_path: inst.is_file().then_some(inst),
+                    })
+                })
+                .collect::<Result<Vec<_>, String>>()
+        })
+        .await
+        .map_err(|e| StoreError::Corrupt(format!("scene {id}: loader failed: {e}")))?
+        .map_err(|w| corrupt(&w))?;
+        let labels_path = scene_dir.join("instance").join("labels.json");
+        let instance_labels = std::fs::read_to_string(&labels_path).ok().and_then(|t| {
+            let m: BTreeMap<String, String> = serde_json::from_str(&t).ok()?;
+            Some(m.into_iter().filter_map(|(k, v)| Some((k.parse().ok()?, v))).collect())
+        });
+        Ok(Some(SceneData { id: id.to_string(), color, depth: depth_k, axis_align: align, frames, instance_labels }))
+    }
+}

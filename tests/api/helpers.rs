@@ -1,0 +1,153 @@
+//! Test helpers: a real server on port 0 with a temp data dir, and tiny scene archives.
+
+use grounder::config::Config;
+use grounder::startup::Application;
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+pub struct TestApp {
+    pub addr: SocketAddr,
+    pub client: reqwest::Client,
+    pub data_dir: PathBuf,
+    _dir: Option<tempfile::TempDir>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    handle: Option<tokio::task::JoinHandle<()>>,
+}
+
+pub fn test_config(data_dir: PathBuf) -> Config {
+    Config {
+        addr: "127.0.0.1:0".into(),
+        data_dir,
+        pipeline: "test:delay_ms=100".into(),
+        detector: "none".into(),
+        ..Config::default()
+    }
+}
+
+impl TestApp {
+    pub async fn spawn() -> TestApp {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let cfg = test_config(dir.path().to_path_buf());
+        let mut app = Self::spawn_with(cfg).await;
+        app._dir = Some(dir);
+        app
+    }
+
+    pub async fn spawn_with(cfg: Config) -> TestApp {
+        let data_dir = cfg.data_dir.clone();
+        let app = Application::build(cfg).await.expect("build app");
+        let addr = app.local_addr().expect("addr");
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let handle = tokio::spawn(async move {
+            app.run_until(async move {
+                let _ = rx.await;
+            })
+            .await
+            .expect("server");
+        });
+        TestApp { addr, client: reqwest::Client::new(), data_dir, _dir: None, stop: Some(tx), handle: Some(handle) }
+    }
+
+    pub fn url(&self, path: &str) -> String {
+        format!("http://{}{}", self.addr, path)
+    }
+
+    pub async fn upload(&self, body: Vec<u8>, content_type: &str) -> reqwest::Response {
+        self.client.post(self.url("/v1/scenes")).header("Content-Type", content_type).body(body).send().await.expect("upload")
+    }
+
+    pub async fn get_json(&self, path: &str) -> (u16, serde_json::Value) {
+        let r = self.client.get(self.url(path)).send().await.expect("get");
+        let s = r.status().as_u16();
+        (s, r.json().await.unwrap_or(serde_json::Value::Null))
+    }
+
+    pub async fn create_job(&self, scene_id: &str, query: &str) -> reqwest::Response {
+        self.client.post(self.url("/v1/jobs")).json(&serde_json::json!({"scene_id": scene_id, "query": query})).send().await.expect("job")
+    }
+
+    /// Poll a job until its status is terminal (or the timeout passes).
+    pub async fn wait_job(&self, id: &str, timeout: Duration) -> serde_json::Value {
+        let start = std::time::Instant::now();
+        loop {
+            let (_, j) = self.get_json(&format!("/v1/jobs/{id}")).await;
+            let st = j["status"].as_str().unwrap_or("");
+            if matches!(st, "succeeded" | "failed" | "canceled") || start.elapsed() > timeout {
+                return j;
+            }
+            tokio::time::sleep(Duration::from_millis(25)).await;
+        }
+    }
+
+    /// Stop the server gracefully and wait for it.
+    pub async fn stop(mut self) -> Option<tempfile::TempDir> {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        if let Some(h) = self.handle.take() {
+            let _ = h.await;
+        }
+        self._dir.take()
+    }
+}
+
+/// Files of a tiny synthetic ScanNet-layout scene: (relative path, bytes).
+pub fn tiny_scene_files(frames: usize) -> Vec<(String, Vec<u8>)> {
+    let (cw, ch, dw, dh) = (64u32, 48u32, 32u32, 24u32);
+    let mut files = Vec::new();
+    for i in 0..frames {
+        let name = i * 20;
+        let img = image::RgbImage::from_fn(cw, ch, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, (i * 40) as u8]));
+        let mut jpg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90).encode_image(&img).expect("jpeg");
+        files.push((format!("color/{name}.jpg"), jpg));
+        let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(dw, dh, |x, _| image::Luma([1000 + x as u16 * 10]));
+        let mut png = Vec::new();
+        depth.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("png");
+        files.push((format!("depth/{name}.png"), png));
+        let pose = if i == frames - 1 && frames > 2 {
+            "-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n".to_string()
+        } else {
+            format!("1 0 0 {}\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", i as f64 * 0.5)
+        };
+        files.push((format!("pose/{name}.txt"), pose.into_bytes()));
+    }
+    files.push(("intrinsic/intrinsic_color.txt".into(), b"50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n".to_vec()));
+    files.push(("axis_align_matrix.txt".into(), b"1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 0 1\n".to_vec()));
+    files
+}
+
+/// Pack files as a tar under an optional top-level folder.
+pub fn tar_of(files: &[(String, Vec<u8>)], top: Option<&str>) -> Vec<u8> {
+    let mut b = tar::Builder::new(Vec::new());
+    for (path, bytes) in files {
+        let p = match top {
+            Some(t) => format!("{t}/{path}"),
+            None => path.clone(),
+        };
+        let mut h = tar::Header::new_gnu();
+        h.set_size(bytes.len() as u64);
+        h.set_mode(0o644);
+        h.set_cksum();
+        b.append_data(&mut h, p, bytes.as_slice()).expect("tar append");
+    }
+    b.into_inner().expect("tar finish")
+}
+
+pub fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    e.write_all(bytes).expect("gz");
+    e.finish().expect("gz")
+}
+
+pub fn zip_of(files: &[(String, Vec<u8>)]) -> Vec<u8> {
+    let mut z = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    let opts = zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Deflated);
+    for (path, bytes) in files {
+        z.start_file(path.as_str(), opts).expect("zip file");
+        z.write_all(bytes).expect("zip write");
+    }
+    z.finish().expect("zip finish").into_inner()
+}

@@ -1,0 +1,157 @@
+use crate::helpers::*;
+use serde_json::Value;
+use std::time::Duration;
+
+async fn scene(app: &TestApp) -> String {
+    let r = app.upload(tar_of(&tiny_scene_files(4), None), "application/x-tar").await;
+    assert_eq!(r.status().as_u16(), 201);
+    r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_string()
+}
+
+#[tokio::test]
+async fn a_job_runs_to_a_box_with_a_trace() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    let r = app.create_job(&sid, "the chair by the window").await;
+    assert_eq!(r.status().as_u16(), 202);
+    let loc = r.headers().get("location").unwrap().to_str().unwrap().to_string();
+    let j: Value = r.json().await.unwrap();
+    assert_eq!(loc, format!("/v1/jobs/{}", j["id"].as_str().unwrap()));
+    assert_eq!(j["status"], "queued");
+    let done = app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10)).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    // The test pipeline boxes the usable camera centres, in the axis-aligned frame
+    // (align adds (1, 2, 3)); frame 60's inf pose is skipped.
+    let b = &done["result"]["box"];
+    assert_eq!(b["min"], serde_json::json!([1.0, 2.0, 3.0]));
+    assert_eq!(b["max"], serde_json::json!([2.0, 2.0, 3.0]));
+    assert_eq!(b["center"], serde_json::json!([1.5, 2.0, 3.0]));
+    assert_eq!(b["size"], serde_json::json!([1.0, 0.0, 0.0]));
+    let steps: Vec<&str> = done["trace"].as_array().unwrap().iter().map(|s| s["step"].as_str().unwrap()).collect();
+    assert_eq!(steps, vec!["start", "done"]);
+    assert_eq!(done["trace"][0]["frames"], 4);
+    for k in ["created_at", "started_at", "finished_at"] {
+        assert!(done[k].is_string(), "{k}");
+    }
+    assert!(done["error"].is_null());
+    app.stop().await;
+}
+
+#[tokio::test]
+async fn failures_cancels_and_bad_requests() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    // A failing pipeline gives a named reason.
+    let j: Value = app.create_job(&sid, "[fail] the lamp").await.json().await.unwrap();
+    let done = app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10)).await;
+    assert_eq!((done["status"].as_str(), done["error"]["code"].as_str()), (Some("failed"), Some("no_target_found")));
+
+    // Cancel while running: the pipeline sleeps 100 ms, so catch it running.
+    let j: Value = app.create_job(&sid, "the table").await.json().await.unwrap();
+    let id = j["id"].as_str().unwrap().to_string();
+    for _ in 0..200 {
+        let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
+        if s["status"] == "running" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let r = app.client.post(app.url(&format!("/v1/jobs/{id}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
+    assert_eq!(s["status"], "canceled", "a cancel is never overwritten by the finishing worker: {s}");
+    let r = app.client.post(app.url(&format!("/v1/jobs/{id}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 409, "cancelling a finished job is a conflict");
+
+    // Validation and 404s.
+    let r = app.create_job(&sid, "   ").await;
+    assert_eq!(r.status().as_u16(), 400);
+    assert_eq!(r.json::<Value>().await.unwrap()["code"], "empty_query");
+    let r = app.create_job("nope", "the chair").await;
+    assert_eq!(r.status().as_u16(), 404);
+    let r = app.client.post(app.url("/v1/jobs")).header("content-type", "application/json").body("{not json").send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 400);
+    assert_eq!(r.headers()["content-type"], "application/problem+json");
+    let r = app.client.post(app.url("/v1/jobs")).header("content-type", "application/json").body("{\"scene_id\": 3}").send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    assert_eq!(r.headers()["content-type"], "application/problem+json");
+    let (s, p) = app.get_json("/v1/jobs/does-not-exist").await;
+    assert_eq!((s, p["code"].as_str()), (404, Some("job_not_found")));
+    let (s, _) = app.get_json("/v1/jobs?status=exploded").await;
+    assert_eq!(s, 400);
+    let (s, _) = app.get_json("/v1/jobs?cursor=garbage").await;
+    assert_eq!(s, 400);
+    app.stop().await;
+}
+
+#[tokio::test]
+async fn listing_pages_with_a_cursor_and_filters() {
+    let app = TestApp::spawn().await;
+    let a = scene(&app).await;
+    let b = scene(&app).await;
+    let mut ids = Vec::new();
+    for i in 0..5 {
+        let sid = if i % 2 == 0 { &a } else { &b };
+        let j: Value = app.create_job(sid, &format!("object {i}")).await.json().await.unwrap();
+        ids.push(j["id"].as_str().unwrap().to_string());
+    }
+    let mut seen = Vec::new();
+    let mut cursor = String::new();
+    loop {
+        let (s, page) = app.get_json(&format!("/v1/jobs?limit=2&cursor={cursor}")).await;
+        assert_eq!(s, 200);
+        for j in page["jobs"].as_array().unwrap() {
+            assert!(j.get("trace").is_none(), "lists omit traces");
+            seen.push(j["id"].as_str().unwrap().to_string());
+        }
+        match page["next_cursor"].as_str() {
+            Some(c) => cursor = c.to_string(),
+            None => break,
+        }
+    }
+    let mut newest_first = ids.clone();
+    newest_first.reverse();
+    assert_eq!(seen, newest_first, "every job once, newest first");
+    let (_, only_a) = app.get_json(&format!("/v1/jobs?scene_id={a}")).await;
+    assert_eq!(only_a["jobs"].as_array().unwrap().len(), 3);
+    for id in &ids {
+        app.wait_job(id, Duration::from_secs(10)).await;
+    }
+    let (_, ok) = app.get_json("/v1/jobs?status=succeeded&limit=500").await;
+    assert_eq!(ok["jobs"].as_array().unwrap().len(), 5);
+    app.stop().await;
+}
+
+#[tokio::test]
+async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    store.set_scene_status(&sid, "indexing", None).await.unwrap();
+    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
+    let id = j["id"].as_str().unwrap();
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
+    assert_eq!(s["status"], "queued", "waits for the scene");
+    let r = app.client.delete(app.url(&format!("/v1/scenes/{sid}"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 204, "a queued job does not block delete");
+    let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
+    assert_eq!((s["status"].as_str(), s["error"]["code"].as_str()), (Some("canceled"), Some("scene_deleted")));
+
+    let sid = scene(&app).await;
+    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
+    app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10)).await;
+    let text = app.client.get(app.url("/metrics")).send().await.unwrap().text().await.unwrap();
+    assert!(text.contains("grounder_jobs{state=\"succeeded\"} 1"), "{text}");
+    assert!(text.contains("grounder_jobs{state=\"canceled\"} 1"), "{text}");
+    assert!(text.contains("grounder_job_duration_seconds_count{outcome=\"succeeded\"} 1"), "{text}");
+    assert!(text.contains("grounder_http_request_duration_seconds_count{method=\"POST\",route=\"/v1/jobs\",status=\"202\"}"), "{text}");
+    let (s, h) = app.get_json("/healthz").await;
+    assert_eq!((s, h["status"].as_str()), (200, Some("ok")));
+    let (s, _) = app.get_json("/readyz").await;
+    assert_eq!(s, 200);
+    let (s, p) = app.get_json("/no/such/route").await;
+    assert_eq!((s, p["code"].as_str()), (404, Some("route_not_found")));
+    app.stop().await;
+}
