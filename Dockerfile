@@ -1,0 +1,34 @@
+# Multi-stage build of the grounder service.
+FROM rust:1-bookworm AS build
+WORKDIR /src
+COPY Cargo.toml Cargo.lock ./
+COPY src src
+COPY migrations migrations
+COPY prompts prompts
+COPY assets assets
+COPY models models
+RUN cargo build --release --locked --bin grounder
+
+# The ONNX Runtime library comes from the onnxruntime Python wheel (one file is kept).
+FROM python:3.11-slim-bookworm AS ort
+RUN pip download --no-deps --only-binary=:all: onnxruntime==1.31.1 -d /tmp/ort \
+ && python -c "import zipfile,glob; z=zipfile.ZipFile(glob.glob('/tmp/ort/*.whl')[0]); open('/libonnxruntime.so.1.31.1','wb').write(z.read('onnxruntime/capi/libonnxruntime.so.1.31.1'))"
+
+FROM debian:bookworm-slim
+RUN apt-get update && apt-get install -y --no-install-recommends ca-certificates libstdc++6 \
+ && rm -rf /var/lib/apt/lists/* \
+ && useradd --system --uid 10001 --create-home grounder \
+ && mkdir -p /data /opt/grounder && chown grounder /data
+COPY --from=build /src/target/release/grounder /usr/local/bin/grounder
+COPY --from=build /src/models /opt/grounder/models
+COPY --from=ort /libonnxruntime.so.1.31.1 /opt/grounder/lib/libonnxruntime.so.1.31.1
+ENV ORT_DYLIB_PATH=/opt/grounder/lib/libonnxruntime.so.1.31.1 \
+    GROUNDER_ADDR=0.0.0.0:8080 \
+    GROUNDER_DATA_DIR=/data \
+    GROUNDER_MODEL_DIR=/opt/grounder/models
+USER grounder
+WORKDIR /opt/grounder
+VOLUME ["/data"]
+EXPOSE 8080
+ENTRYPOINT ["grounder"]
+CMD ["serve"]
