@@ -64,7 +64,9 @@ pub fn subsample_even(points: &[Point3<f64>], max: usize) -> Vec<Point3<f64>> {
 ///
 /// * for every point, `d_i` = mean Euclidean distance to its `nb_neighbors` nearest points
 ///   of the cloud, the point itself included (so one of them is 0);
-/// * `mean` and `std` (Bessel-corrected, n − 1) of the `d_i` over points with `d_i > 0`;
+/// * `n` = points that have neighbours; `mean` = (sum of the `d_i > 0`) / n;
+///   `std` = sqrt(sum over `d_i > 0` of (d_i − mean)² / (n − 1)) — Open3D's formulas, which
+///   count points with `d_i = 0` (exact duplicates) in n but not in the sums;
 /// * keep point i when `0 < d_i < mean + std_ratio * std` (strict, as Open3D).
 ///
 /// Returns all indices when there are fewer than 2 usable points or `nb_neighbors == 0`
@@ -74,23 +76,10 @@ pub fn statistical_outlier_indices(
     nb_neighbors: usize,
     std_ratio: f64,
 ) -> Vec<usize> {
-    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
-        return (0..points.len()).collect();
-    };
-    if points.len() < 2 {
+    if nb_neighbors == 0 || points.len() < 2 {
         return (0..points.len()).collect();
     }
-    let tree = build_tree(points);
-    let avg: Vec<f64> = points
-        .iter()
-        .map(|p| {
-            let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
-            if nn.is_empty() {
-                return -1.0;
-            }
-            nn.iter().map(|n| n.distance.sqrt()).sum::<f64>() / nn.len() as f64
-        })
-        .collect();
+    let avg = neighbour_mean_distances(points, nb_neighbors);
     let valid = avg.iter().filter(|&&d| d >= 0.0).count();
     if valid < 2 {
         return (0..points.len()).collect();
@@ -105,6 +94,28 @@ pub fn statistical_outlier_indices(
     let threshold = mean + std_ratio * std;
     (0..points.len())
         .filter(|&i| avg[i] > 0.0 && avg[i] < threshold)
+        .collect()
+}
+
+/// For each point, the mean Euclidean distance to its `nb_neighbors` nearest points of
+/// the cloud, the point itself included (Open3D's statistic); -1 when there are none.
+pub fn neighbour_mean_distances(points: &[Point3<f64>], nb_neighbors: usize) -> Vec<f64> {
+    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
+        return vec![-1.0; points.len()];
+    };
+    if points.is_empty() {
+        return Vec::new();
+    }
+    let tree = build_tree(points);
+    points
+        .iter()
+        .map(|p| {
+            let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
+            if nn.is_empty() {
+                return -1.0;
+            }
+            nn.iter().map(|n| n.distance.sqrt()).sum::<f64>() / nn.len() as f64
+        })
         .collect()
 }
 

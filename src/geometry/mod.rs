@@ -17,7 +17,7 @@ pub mod projection;
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
 pub use cloud::{
-    chamfer_distance, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
+    chamfer_distance, neighbour_mean_distances, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
 };
 pub use ensemble::{
     find_views, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
