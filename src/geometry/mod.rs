@@ -1,9 +1,31 @@
 //! Pure geometry: cameras, masks, point clouds, boxes. No I/O, no HTTP, no models.
+//!
+//! Pipeline used by the agent (paper Sec. 3.4, with reprojection instead of image matching):
+//! [`mask_points`] (erode + largest components + back-project) on the anchor view →
+//! [`find_views`] over the other frames → the agent segments each returned view →
+//! [`mask_points`] per view → [`fuse_views`] (chamfer filter, union, outlier removal, AABB).
 
 pub mod boxes;
 pub mod camera;
+pub mod cloud;
+pub mod ensemble;
 pub mod mask;
+pub mod morph;
+pub mod params;
+pub mod projection;
 
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
+pub use cloud::{
+    chamfer_distance, neighbour_mean_distances, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
+};
+pub use ensemble::{
+    find_views, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
+    ViewCandidate, ViewDecision,
+};
 pub use mask::Mask;
+pub use morph::{erode_square, keep_largest_components, postprocess_mask};
+pub use params::GeometryParams;
+pub use projection::{
+    backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,
+};

@@ -1,0 +1,225 @@
+//! Point-cloud operations: voxel downsampling, Open3D-identical statistical outlier
+//! removal and the chamfer distance of the ensemble filter. Nearest neighbours come from
+//! a kiddo k-d tree.
+
+use std::collections::HashMap;
+use std::num::NonZeroUsize;
+
+use kiddo::immutable::float::kdtree::ImmutableKdTree;
+use kiddo::SquaredEuclidean;
+use nalgebra::Point3;
+
+type Tree = ImmutableKdTree<f64, u32, 3, 32>;
+
+fn build_tree(points: &[Point3<f64>]) -> Tree {
+    let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
+    Tree::new_from_slice(&coords)
+}
+
+/// One point per occupied voxel of side `voxel` (the centroid of that voxel's points),
+/// in order of first occurrence. `voxel <= 0` returns the input unchanged.
+pub fn voxel_downsample(points: &[Point3<f64>], voxel: f64) -> Vec<Point3<f64>> {
+    if voxel <= 0.0 || points.is_empty() {
+        return points.to_vec();
+    }
+    let mut slot: HashMap<(i64, i64, i64), usize> = HashMap::with_capacity(points.len() / 4);
+    let mut sums: Vec<([f64; 3], u32)> = Vec::new();
+    for p in points {
+        let key = (
+            (p.x / voxel).floor() as i64,
+            (p.y / voxel).floor() as i64,
+            (p.z / voxel).floor() as i64,
+        );
+        let i = *slot.entry(key).or_insert_with(|| {
+            sums.push(([0.0; 3], 0));
+            sums.len() - 1
+        });
+        let s = &mut sums[i];
+        s.0[0] += p.x;
+        s.0[1] += p.y;
+        s.0[2] += p.z;
+        s.1 += 1;
+    }
+    sums.into_iter()
+        .map(|(s, n)| {
+            let n = n as f64;
+            Point3::new(s[0] / n, s[1] / n, s[2] / n)
+        })
+        .collect()
+}
+
+/// Evenly spaced subset of at most `max` points (every k-th point); `max == 0` keeps all.
+pub fn subsample_even(points: &[Point3<f64>], max: usize) -> Vec<Point3<f64>> {
+    if max == 0 || points.len() <= max {
+        return points.to_vec();
+    }
+    let step = points.len() as f64 / max as f64;
+    (0..max)
+        .map(|i| points[(i as f64 * step) as usize])
+        .collect()
+}
+
+/// Indices of the points kept by statistical outlier removal, exactly as Open3D's
+/// `remove_statistical_outlier(nb_neighbors, std_ratio)` defines it:
+///
+/// * for every point, `d_i` = mean Euclidean distance to its `nb_neighbors` nearest points
+///   of the cloud, the point itself included (so one of them is 0);
+/// * `n` = points that have neighbours; `mean` = (sum of the `d_i > 0`) / n;
+///   `std` = sqrt(sum over `d_i > 0` of (d_i − mean)² / (n − 1)) — Open3D's formulas, which
+///   count points with `d_i = 0` (exact duplicates) in n but not in the sums;
+/// * keep point i when `0 < d_i < mean + std_ratio * std` (strict, as Open3D).
+///
+/// Returns all indices when there are fewer than 2 usable points or `nb_neighbors == 0`
+/// (Open3D reports an error there; we prefer a no-op).
+pub fn statistical_outlier_indices(
+    points: &[Point3<f64>],
+    nb_neighbors: usize,
+    std_ratio: f64,
+) -> Vec<usize> {
+    if nb_neighbors == 0 || points.len() < 2 {
+        return (0..points.len()).collect();
+    }
+    let avg = neighbour_mean_distances(points, nb_neighbors);
+    let valid = avg.iter().filter(|&&d| d >= 0.0).count();
+    if valid < 2 {
+        return (0..points.len()).collect();
+    }
+    let mean = avg.iter().filter(|&&d| d > 0.0).sum::<f64>() / valid as f64;
+    let sq: f64 = avg
+        .iter()
+        .filter(|&&d| d > 0.0)
+        .map(|d| (d - mean) * (d - mean))
+        .sum();
+    let std = (sq / (valid - 1) as f64).sqrt();
+    let threshold = mean + std_ratio * std;
+    (0..points.len())
+        .filter(|&i| avg[i] > 0.0 && avg[i] < threshold)
+        .collect()
+}
+
+/// For each point, the mean Euclidean distance to its `nb_neighbors` nearest points of
+/// the cloud, the point itself included (Open3D's statistic); -1 when there are none.
+pub fn neighbour_mean_distances(points: &[Point3<f64>], nb_neighbors: usize) -> Vec<f64> {
+    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
+        return vec![-1.0; points.len()];
+    };
+    if points.is_empty() {
+        return Vec::new();
+    }
+    let tree = build_tree(points);
+    points
+        .iter()
+        .map(|p| {
+            let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
+            if nn.is_empty() {
+                return -1.0;
+            }
+            nn.iter().map(|n| n.distance.sqrt()).sum::<f64>() / nn.len() as f64
+        })
+        .collect()
+}
+
+/// The points kept by [`statistical_outlier_indices`].
+pub fn remove_statistical_outliers(
+    points: &[Point3<f64>],
+    nb_neighbors: usize,
+    std_ratio: f64,
+) -> Vec<Point3<f64>> {
+    statistical_outlier_indices(points, nb_neighbors, std_ratio)
+        .into_iter()
+        .map(|i| points[i])
+        .collect()
+}
+
+/// Mean over `a` of the squared distance to the nearest point of `b` (`tree` is built on `b`).
+fn directional_mean_sq(a: &[Point3<f64>], tree: &Tree) -> f64 {
+    let s: f64 = a
+        .iter()
+        .map(|p| {
+            tree.nearest_one::<SquaredEuclidean>(&[p.x, p.y, p.z])
+                .distance
+        })
+        .sum();
+    s / a.len() as f64
+}
+
+/// Chamfer distance (m^2) as the ensemble filter uses it:
+/// `mean_{a∈A} min_{b∈B} |a−b|² + mean_{b∈B} min_{a∈A} |a−b|²`.
+/// `None` when either cloud is empty.
+pub fn chamfer_distance(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<f64> {
+    if a.is_empty() || b.is_empty() {
+        return None;
+    }
+    let (ta, tb) = (build_tree(a), build_tree(b));
+    Some(directional_mean_sq(a, &tb) + directional_mean_sq(b, &ta))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(x: f64, y: f64, z: f64) -> Point3<f64> {
+        Point3::new(x, y, z)
+    }
+
+    #[test]
+    fn chamfer_hand_computed() {
+        let a = [p(0.0, 0.0, 0.0), p(1.0, 0.0, 0.0)];
+        let b = [p(0.0, 0.5, 0.0)];
+        // A->B: (0.25 + 1.25) / 2 = 0.75 ; B->A: 0.25 ; total 1.0
+        let c = chamfer_distance(&a, &b).unwrap_or(f64::NAN);
+        assert!((c - 1.0).abs() < 1e-12, "{c}");
+        assert_eq!(chamfer_distance(&a, &a), Some(0.0));
+        assert_eq!(chamfer_distance(&a, &[]), None);
+    }
+
+    #[test]
+    fn voxel_centroids() {
+        let pts = [p(0.01, 0.01, 0.01), p(0.03, 0.03, 0.03), p(0.15, 0.0, 0.0)];
+        let d = voxel_downsample(&pts, 0.1);
+        assert_eq!(d.len(), 2);
+        assert!((d[0] - p(0.02, 0.02, 0.02)).norm() < 1e-12);
+        assert!((d[1] - p(0.15, 0.0, 0.0)).norm() < 1e-12);
+        assert_eq!(voxel_downsample(&pts, 0.0).len(), 3);
+    }
+
+    #[test]
+    fn sor_hand_computed_line() {
+        // Points on a line at 0,1,2,3 and an outlier at 20; nb = 2 (self + nearest).
+        let pts = [
+            p(0.0, 0.0, 0.0),
+            p(1.0, 0.0, 0.0),
+            p(2.0, 0.0, 0.0),
+            p(3.0, 0.0, 0.0),
+            p(20.0, 0.0, 0.0),
+        ];
+        // d = [0.5, 0.5, 0.5, 0.5, 8.5]; mean = 2.1; std = sqrt(4*1.6^2+6.4^2)/2 = 3.577..
+        // threshold (ratio 1) = 5.677 -> outlier dropped.
+        assert_eq!(statistical_outlier_indices(&pts, 2, 1.0), vec![0, 1, 2, 3]);
+        // ratio 2 -> threshold 9.25 keeps all.
+        assert_eq!(statistical_outlier_indices(&pts, 2, 2.0).len(), 5);
+    }
+
+    #[test]
+    fn sor_drops_exact_duplicates_like_open3d() {
+        // With nb = 2 a point whose nearest other point coincides has d = 0 and is dropped.
+        let pts = [
+            p(0.0, 0.0, 0.0),
+            p(0.0, 0.0, 0.0),
+            p(1.0, 0.0, 0.0),
+            p(2.5, 0.0, 0.0),
+        ];
+        let kept = statistical_outlier_indices(&pts, 2, 3.0);
+        assert_eq!(kept, vec![2, 3]);
+    }
+
+    #[test]
+    fn even_subsample() {
+        let pts: Vec<_> = (0..10).map(|i| p(i as f64, 0.0, 0.0)).collect();
+        let s = subsample_even(&pts, 5);
+        assert_eq!(
+            s.iter().map(|q| q.x as i32).collect::<Vec<_>>(),
+            vec![0, 2, 4, 6, 8]
+        );
+    }
+}

@@ -1,0 +1,223 @@
+//! Multi-view ensemble: find the frames that see the anchor's points (reprojection and
+//! depth consistency replace the paper's image matching), then fuse the per-view clouds
+//! with the paper's chamfer filter, outlier removal and an axis-aligned box.
+
+use nalgebra::Point3;
+use serde::Serialize;
+
+use super::cloud::{
+    chamfer_distance, remove_statistical_outliers, subsample_even, voxel_downsample,
+};
+use super::projection::{project_points, ProjectionError};
+use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
+
+/// One frame that may join the ensemble.
+#[derive(Debug, Clone, Copy)]
+pub struct CandidateFrame<'a> {
+    /// Caller's frame index (returned unchanged).
+    pub index: usize,
+    pub camera: &'a FrameCamera,
+    pub depth: &'a DepthMap,
+}
+
+/// A frame that sees enough of the anchor's points, with their footprint there.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ViewCandidate {
+    pub index: usize,
+    /// Visible probe points / probe points.
+    pub visible_fraction: f64,
+    pub visible_points: usize,
+    /// Reprojected 2D box of the visible points in colour pixels: [x1, y1, x2, y2]
+    /// (x2, y2 exclusive).
+    pub bbox: [f32; 4],
+    /// Distinct colour pixels [x, y] hit by visible points.
+    #[serde(skip)]
+    pub pixels: Vec<[u32; 2]>,
+}
+
+impl ViewCandidate {
+    /// The projected pixel set as a colour-resolution mask of the given size.
+    pub fn footprint_mask(&self, width: u32, height: u32) -> Mask {
+        let mut m = Mask::new(width, height);
+        for &[x, y] in &self.pixels {
+            m.set(x, y, true);
+        }
+        m
+    }
+}
+
+/// Rank `candidates` by the fraction of `anchor_points` they see (visible = in image and
+/// consistent with that frame's depth, see [`project_points`]); keep those with at least
+/// `params.min_visible_fraction`, best first (ties: lower index), at most
+/// `params.max_views - 1`. The anchor frame itself should not be among the candidates.
+/// Frames with an unusable pose or a depth map of the wrong size are skipped.
+pub fn find_views(
+    anchor_points: &[Point3<f64>],
+    candidates: &[CandidateFrame<'_>],
+    params: &GeometryParams,
+) -> Vec<ViewCandidate> {
+    if anchor_points.is_empty() {
+        return Vec::new();
+    }
+    let probe = subsample_even(anchor_points, params.max_probe_points);
+    let mut out: Vec<ViewCandidate> = candidates
+        .iter()
+        .filter_map(|c| {
+            let proj = project_points(&probe, c.camera, c.depth, params).ok()?;
+            let (w, h) = (c.camera.color.width, c.camera.color.height);
+            let mut seen = vec![false; w as usize * h as usize];
+            let mut pixels = Vec::new();
+            let (mut x1, mut y1, mut x2, mut y2) = (u32::MAX, u32::MAX, 0u32, 0u32);
+            let mut n = 0usize;
+            for q in proj.iter().flatten().filter(|q| q.visible) {
+                n += 1;
+                let x = (q.u.round().max(0.0) as u32).min(w - 1);
+                let y = (q.v.round().max(0.0) as u32).min(h - 1);
+                x1 = x1.min(x);
+                y1 = y1.min(y);
+                x2 = x2.max(x + 1);
+                y2 = y2.max(y + 1);
+                let i = y as usize * w as usize + x as usize;
+                if !seen[i] {
+                    seen[i] = true;
+                    pixels.push([x, y]);
+                }
+            }
+            let frac = n as f64 / probe.len() as f64;
+            (n > 0 && frac >= params.min_visible_fraction).then(|| ViewCandidate {
+                index: c.index,
+                visible_fraction: frac,
+                visible_points: n,
+                bbox: [x1 as f32, y1 as f32, x2 as f32, y2 as f32],
+                pixels,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| {
+        b.visible_fraction
+            .total_cmp(&a.visible_fraction)
+            .then(a.index.cmp(&b.index))
+    });
+    out.truncate(params.max_views.saturating_sub(1));
+    out
+}
+
+/// What happened to one non-anchor view during fusion.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ViewDecision {
+    pub index: usize,
+    /// Chamfer distance (m^2) to the anchor cloud; `None` when a cloud was empty.
+    pub chamfer: Option<f64>,
+    pub kept: bool,
+    pub points: usize,
+}
+
+/// Result of [`fuse_views`], serialisable for the agent's trace.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FusionResult {
+    /// Box of the fused, outlier-filtered points; `None` when nothing was left.
+    pub aabb: Option<Aabb>,
+    pub anchor_points: usize,
+    /// Points after union (and fusion voxel downsampling), before outlier removal.
+    pub fused_points: usize,
+    /// Points after outlier removal.
+    pub kept_points: usize,
+    pub views: Vec<ViewDecision>,
+}
+
+/// Fuse the anchor's points with other views' points (index, points):
+/// 1. chamfer distance of each view to the anchor, both clouds voxel-downsampled by
+///    `params.chamfer_voxel`; drop the view when it exceeds `params.chamfer_threshold`
+///    (or when either cloud is empty);
+/// 2. union of the anchor and kept views, downsampled by `params.fusion_voxel`;
+/// 3. statistical outlier removal (`sor_neighbors`, `sor_std_ratio`); 4. AABB.
+pub fn fuse_views(
+    anchor: &[Point3<f64>],
+    others: &[(usize, Vec<Point3<f64>>)],
+    params: &GeometryParams,
+) -> FusionResult {
+    let anchor_ds = voxel_downsample(anchor, params.chamfer_voxel);
+    let mut union: Vec<Point3<f64>> = anchor.to_vec();
+    let mut views = Vec::with_capacity(others.len());
+    for (index, pts) in others {
+        let chamfer = chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
+        let kept = chamfer.is_some_and(|c| c <= params.chamfer_threshold);
+        if kept {
+            union.extend_from_slice(pts);
+        }
+        views.push(ViewDecision {
+            index: *index,
+            chamfer,
+            kept,
+            points: pts.len(),
+        });
+    }
+    let fused = voxel_downsample(&union, params.fusion_voxel);
+    let kept = remove_statistical_outliers(&fused, params.sor_neighbors, params.sor_std_ratio);
+    FusionResult {
+        aabb: Aabb::from_points(&kept),
+        anchor_points: anchor.len(),
+        fused_points: fused.len(),
+        kept_points: kept.len(),
+        views,
+    }
+}
+
+/// Single-view box: outlier removal of one cloud (fusion voxel applied first), then AABB.
+pub fn single_view_box(points: &[Point3<f64>], params: &GeometryParams) -> Option<Aabb> {
+    fuse_views(points, &[], params).aabb
+}
+
+/// Mask post-processing (erosion + largest components) then back-projection, with the
+/// stride and voxel of `params`: the per-view step before [`find_views`] / [`fuse_views`].
+pub fn mask_points(
+    mask: &Mask,
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    params: &GeometryParams,
+) -> Result<Vec<Point3<f64>>, ProjectionError> {
+    let m = super::morph::postprocess_mask(mask, params.erode_kernel, params.keep_components);
+    super::projection::backproject_mask(&m, cam, depth, params.into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn blob(cx: f64, n: usize) -> Vec<Point3<f64>> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64;
+                Point3::new(
+                    cx + 0.1 * (t * 0.37).sin(),
+                    0.1 * (t * 0.71).cos(),
+                    0.1 * ((t * 1.3).sin()),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn chamfer_filter_keeps_same_object_drops_other() {
+        let p = GeometryParams::default();
+        let anchor = blob(0.0, 300);
+        let same = blob(0.01, 250);
+        let other = blob(1.5, 250);
+        let r = fuse_views(&anchor, &[(3, same), (5, other), (7, vec![])], &p);
+        assert_eq!(r.views.len(), 3);
+        assert!(r.views[0].kept && r.views[0].chamfer.is_some_and(|c| c < 0.01));
+        assert!(!r.views[1].kept && r.views[1].chamfer.is_some_and(|c| c > 1.0));
+        assert!(!r.views[2].kept && r.views[2].chamfer.is_none());
+        let b = r.aabb.unwrap_or(Aabb::new([0.0; 3], [0.0; 3]));
+        assert!(b.max[0] < 0.2 && b.min[0] > -0.2, "{b:?}");
+        let json = serde_json::to_string(&r).unwrap_or_default();
+        assert!(json.contains("\"chamfer\""));
+    }
+
+    #[test]
+    fn empty_anchor_gives_no_box() {
+        let r = fuse_views(&[], &[(1, blob(0.0, 10))], &GeometryParams::default());
+        assert!(r.aabb.is_none() && !r.views[0].kept);
+        assert!(find_views(&[], &[], &GeometryParams::default()).is_empty());
+    }
+}

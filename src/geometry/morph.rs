@@ -1,0 +1,124 @@
+//! Mask post-processing of the paper: one square erosion, then keep the largest
+//! 8-connected components.
+
+use image::{GrayImage, Luma};
+use imageproc::distance_transform::Norm;
+use imageproc::region_labelling::{connected_components, Connectivity};
+
+use super::Mask;
+
+fn to_gray(mask: &Mask) -> GrayImage {
+    let data = mask
+        .data
+        .iter()
+        .map(|&b| if b { 255u8 } else { 0 })
+        .collect();
+    // Size always matches: Mask keeps width * height entries.
+    GrayImage::from_raw(mask.width, mask.height, data)
+        .unwrap_or_else(|| GrayImage::new(mask.width, mask.height))
+}
+
+/// Erode with a `kernel` x `kernel` all-ones square. Pixels outside the image count as
+/// foreground (so a mask touching the border is not eaten from that side, as in OpenCV).
+/// Even kernels are rounded up to the next odd size; 0 and 1 return the mask unchanged.
+pub fn erode_square(mask: &Mask, kernel: u32) -> Mask {
+    if kernel <= 1 || mask.count() == 0 {
+        return mask.clone();
+    }
+    let radius = (kernel / 2).min(254) as u8;
+    let eroded = imageproc::morphology::erode(&to_gray(mask), Norm::LInf, radius);
+    Mask {
+        width: mask.width,
+        height: mask.height,
+        data: eroded.pixels().map(|p| p[0] > 0).collect(),
+    }
+}
+
+/// Keep the `keep` largest 8-connected components (ties: lower label first); 0 keeps all.
+pub fn keep_largest_components(mask: &Mask, keep: usize) -> Mask {
+    if keep == 0 || mask.count() == 0 {
+        return mask.clone();
+    }
+    let labels = connected_components(&to_gray(mask), Connectivity::Eight, Luma([0u8]));
+    let mut sizes: Vec<usize> = Vec::new();
+    for p in labels.pixels() {
+        let l = p[0] as usize;
+        if l > 0 {
+            if sizes.len() < l {
+                sizes.resize(l, 0);
+            }
+            sizes[l - 1] += 1;
+        }
+    }
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    order.sort_by(|&a, &b| sizes[b].cmp(&sizes[a]).then(a.cmp(&b)));
+    let mut keep_label = vec![false; sizes.len() + 1];
+    for &i in order.iter().take(keep) {
+        keep_label[i + 1] = true;
+    }
+    Mask {
+        width: mask.width,
+        height: mask.height,
+        data: labels.pixels().map(|p| keep_label[p[0] as usize]).collect(),
+    }
+}
+
+/// The paper's post-processing: erosion by `kernel`, then the `keep` largest components.
+pub fn postprocess_mask(mask: &Mask, kernel: u32, keep: usize) -> Mask {
+    keep_largest_components(&erode_square(mask, kernel), keep)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect(m: &mut Mask, x0: u32, y0: u32, x1: u32, y1: u32) {
+        for y in y0..y1 {
+            for x in x0..x1 {
+                m.set(x, y, true);
+            }
+        }
+    }
+
+    #[test]
+    fn erosion_shrinks_rectangle_by_radius() {
+        let mut m = Mask::new(40, 30);
+        rect(&mut m, 5, 5, 25, 20); // 20 x 15
+        let e = erode_square(&m, 5); // radius 2
+        assert_eq!(e.count(), 16 * 11);
+        assert!(e.get(7, 7) && !e.get(6, 7) && e.get(22, 17) && !e.get(23, 17));
+    }
+
+    #[test]
+    fn erosion_does_not_eat_image_border() {
+        let mut m = Mask::new(20, 20);
+        rect(&mut m, 0, 0, 10, 20); // touches left, top, bottom borders
+        let e = erode_square(&m, 3);
+        assert_eq!(e.count(), 9 * 20);
+        assert!(e.get(0, 0) && e.get(8, 19) && !e.get(9, 5));
+    }
+
+    #[test]
+    fn full_mask_survives_and_tiny_blobs_vanish() {
+        let mut m = Mask::new(10, 10);
+        rect(&mut m, 0, 0, 10, 10);
+        assert_eq!(erode_square(&m, 15).count(), 100);
+        let mut t = Mask::new(30, 30);
+        rect(&mut t, 10, 10, 14, 14);
+        assert_eq!(erode_square(&t, 5).count(), 0);
+    }
+
+    #[test]
+    fn keeps_two_largest_eight_connected() {
+        let mut m = Mask::new(30, 30);
+        rect(&mut m, 0, 0, 5, 5); // 25
+        rect(&mut m, 5, 5, 7, 7); // diagonal touch -> same component as the first: 29
+        rect(&mut m, 10, 0, 13, 3); // 9
+        rect(&mut m, 20, 20, 24, 24); // 16
+        rect(&mut m, 0, 20, 2, 22); // 4
+        let k = keep_largest_components(&m, 2);
+        assert_eq!(k.count(), 29 + 16);
+        assert!(k.get(6, 6) && k.get(21, 21) && !k.get(11, 1) && !k.get(0, 20));
+        assert_eq!(keep_largest_components(&m, 0).count(), m.count());
+    }
+}

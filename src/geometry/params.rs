@@ -1,0 +1,69 @@
+//! Every tunable of the geometry stage in one serde struct (defaults = paper settings).
+
+use serde::{Deserialize, Serialize};
+
+/// Parameters of mask post-processing, back-projection, view finding and fusion.
+///
+/// Defaults follow REFERENCE-PARAMS.md ("Segmentation and projection"); the view-finding
+/// values are our own (we reproject through depth and poses instead of matching images).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct GeometryParams {
+    /// Side of the square erosion kernel in pixels (odd; 0 or 1 disables erosion). Paper: 15.
+    pub erode_kernel: u32,
+    /// How many of the largest 8-connected components to keep after erosion (0 = all). Paper: 2.
+    pub keep_components: usize,
+    /// Use every n-th mask pixel in x and y when back-projecting (1 = every pixel).
+    pub pixel_stride: u32,
+    /// Voxel size (m) for downsampling back-projected mask points (0 = off).
+    pub mask_voxel: f64,
+    /// Statistical outlier removal: neighbours per point (Open3D `nb_neighbors`, self included).
+    pub sor_neighbors: usize,
+    /// Statistical outlier removal: `std_ratio`.
+    pub sor_std_ratio: f64,
+    /// Depth-consistency tolerance for visibility: absolute part (m).
+    pub visibility_tol_abs: f64,
+    /// Depth-consistency tolerance for visibility: part proportional to depth.
+    pub visibility_tol_rel: f64,
+    /// Ensemble size N including the anchor (paper: 7).
+    pub max_views: usize,
+    /// A candidate view needs at least this fraction of anchor points visible.
+    pub min_visible_fraction: f64,
+    /// At most this many anchor points are reprojected per candidate (evenly subsampled).
+    pub max_probe_points: usize,
+    /// Chamfer threshold in m^2 (sum of the two directional mean squared NN distances).
+    pub chamfer_threshold: f64,
+    /// Voxel size (m) applied to both clouds before the chamfer distance (0 = off).
+    pub chamfer_voxel: f64,
+    /// Voxel size (m) applied to the fused union before outlier removal (0 = off).
+    pub fusion_voxel: f64,
+}
+
+impl Default for GeometryParams {
+    fn default() -> Self {
+        Self {
+            erode_kernel: 15,
+            keep_components: 2,
+            pixel_stride: 1,
+            mask_voxel: 0.0,
+            sor_neighbors: 5,
+            sor_std_ratio: 1.0,
+            visibility_tol_abs: 0.05,
+            visibility_tol_rel: 0.03,
+            max_views: 7,
+            min_visible_fraction: 0.1,
+            max_probe_points: 4000,
+            chamfer_threshold: 0.1,
+            chamfer_voxel: 0.02,
+            fusion_voxel: 0.01,
+        }
+    }
+}
+
+impl GeometryParams {
+    /// Depth tolerance (m) for a point seen at camera depth `z`.
+    #[inline]
+    pub fn visibility_tolerance(&self, z: f64) -> f64 {
+        self.visibility_tol_abs + self.visibility_tol_rel * z
+    }
+}
