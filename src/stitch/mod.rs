@@ -2,3 +2,6 @@
 //! and the visual-retrieval benchmark.
 
 pub mod cli;
+pub mod plan;
+
+pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
