@@ -30,7 +30,14 @@ fn branch_8l_paper_example_n40() {
     let p = plan(40, 6);
     assert_eq!(
         layouts(&p),
-        vec![(4, 1, 4), (4, 1, 4), (2, 4, 8), (2, 4, 8), (2, 4, 8), (2, 4, 8)]
+        vec![
+            (4, 1, 4),
+            (4, 1, 4),
+            (2, 4, 8),
+            (2, 4, 8),
+            (2, 4, 8),
+            (2, 4, 8)
+        ]
     );
 }
 
@@ -39,7 +46,14 @@ fn branch_8l_partial_last_grid() {
     // n = 25, L = 6: n8 = ceil(1/4) = 1, n4 = 5 -> five (4, 1) full, one (2, 4) with 5.
     assert_eq!(
         layouts(&plan(25, 6)),
-        vec![(4, 1, 4), (4, 1, 4), (4, 1, 4), (4, 1, 4), (4, 1, 4), (2, 4, 5)]
+        vec![
+            (4, 1, 4),
+            (4, 1, 4),
+            (4, 1, 4),
+            (4, 1, 4),
+            (4, 1, 4),
+            (2, 4, 5)
+        ]
     );
 }
 
@@ -58,7 +72,14 @@ fn branch_16l_mixed() {
     let p = plan(60, 6);
     assert_eq!(
         layouts(&p),
-        vec![(4, 1, 4), (2, 4, 8), (2, 4, 8), (2, 4, 8), (8, 2, 16), (8, 2, 16)]
+        vec![
+            (4, 1, 4),
+            (2, 4, 8),
+            (2, 4, 8),
+            (2, 4, 8),
+            (8, 2, 16),
+            (8, 2, 16)
+        ]
     );
 }
 
@@ -69,7 +90,14 @@ fn branch_27l_mixed() {
     let p = plan(120, 6);
     assert_eq!(
         layouts(&p),
-        vec![(2, 4, 8), (8, 2, 16), (8, 2, 16), (9, 3, 27), (9, 3, 27), (9, 3, 26)]
+        vec![
+            (2, 4, 8),
+            (8, 2, 16),
+            (8, 2, 16),
+            (9, 3, 27),
+            (9, 3, 27),
+            (9, 3, 26)
+        ]
     );
 }
 
@@ -100,7 +128,10 @@ fn no_image_lost_or_duplicated_and_limit_respected() {
             let p = plan(n, l);
             assert_eq!(total(&p), n, "n={n} L={l}: {p:?}");
             for s in &p {
-                assert!(s.frames >= 1 && s.frames <= s.capacity(), "n={n} L={l}: {p:?}");
+                assert!(
+                    s.frames >= 1 && s.frames <= s.capacity(),
+                    "n={n} L={l}: {p:?}"
+                );
                 assert!(
                     [(4, 1), (2, 4), (8, 2), (9, 3)].contains(&(s.rows, s.cols)),
                     "n={n} L={l}: {p:?}"

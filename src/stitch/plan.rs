@@ -49,7 +49,11 @@ fn stitch_slice(n: i64, layout: (u32, u32), out: &mut Vec<GridSpec>) {
     let mut left = n.max(0);
     while left > 0 {
         let k = left.min(cap);
-        out.push(GridSpec { rows: layout.0, cols: layout.1, frames: k as u32 });
+        out.push(GridSpec {
+            rows: layout.0,
+            cols: layout.1,
+            frames: k as u32,
+        });
         left -= k;
     }
 }
