@@ -1,4 +1,19 @@
 //! Dynamic stitching of frames into grid images, id labels, instance annotation,
 //! and the visual-retrieval benchmark.
+//!
+//! Entry points for the agent: [`plan`], [`render_grid`], [`encode_jpeg`], [`stitch_all`],
+//! [`annotate_instances`], [`resize_to_limit`].
 
+pub mod annotate;
 pub mod cli;
+pub mod label;
+pub mod plan;
+pub mod render;
+
+pub use annotate::{annotate_instances, AnnotateOptions};
+pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
+pub use render::{
+    decode_image, encode_jpeg, jpeg_data_url, load_frames, render_grid,
+    render_grid_with_placements, resize_to_limit, stitch_all, stitch_with_specs, StitchOptions,
+    StitchedImage, TilePlacement,
+};
