@@ -108,7 +108,7 @@ fn balanced_object(s: &str) -> Option<&str> {
                 escaped = false;
             } else if c == '\\' {
                 escaped = true;
-            } else if c == q {
+            } else if c == q && (q == '"' || closes_single(&s[i + 1..])) {
                 quote = None;
             }
             continue;
@@ -208,10 +208,9 @@ fn strip_comments_and_trailing_commas(s: &str) -> String {
 fn single_to_double_quotes(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     let mut in_str = false;
-    let mut prev: Option<char> = None;
-    for c in s.chars() {
+    for (i, c) in s.char_indices() {
         if c == '\'' {
-            let apostrophe = in_str && prev.is_some_and(|p| p.is_alphanumeric());
+            let apostrophe = in_str && !closes_single(&s[i + 1..]);
             if apostrophe {
                 out.push(c);
             } else {
@@ -221,9 +220,16 @@ fn single_to_double_quotes(s: &str) -> String {
         } else {
             out.push(c);
         }
-        prev = Some(c);
     }
     out
+}
+
+/// A single quote ends a string only when the next non-space character ends a value.
+fn closes_single(rest: &str) -> bool {
+    matches!(
+        rest.trim_start().chars().next(),
+        None | Some(',' | ':' | ']' | '}')
+    )
 }
 
 /// Read an id written as `7`, `"7"`, `"00007"`, `"image 00007"`, `"ID:3"`, `"00007.jpg"`:
