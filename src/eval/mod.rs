@@ -3,3 +3,6 @@
 pub mod cli;
 pub mod dataset;
 pub mod metrics;
+pub mod plot;
+pub mod report;
+pub mod trace;
