@@ -6,3 +6,5 @@ pub mod metrics;
 pub mod plot;
 pub mod report;
 pub mod trace;
+pub mod runner;
+pub mod convert;
