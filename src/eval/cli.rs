@@ -88,7 +88,11 @@ pub async fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         args.out.display()
     );
     if !o.errors.is_empty() {
-        anyhow::bail!("{} queries could not be run (first: {}); rerun the same command to retry them", o.errors.len(), o.errors[0]);
+        anyhow::bail!(
+            "{} queries could not be run (first: {}); rerun the same command to retry them",
+            o.errors.len(),
+            o.errors[0]
+        );
     }
     Ok(())
 }

@@ -54,13 +54,18 @@ pub struct EvalOutcome {
 pub fn tar_scene(dir: &Path, name: &str) -> Result<Vec<u8>> {
     let mut b = tar::Builder::new(Vec::new());
     b.follow_symlinks(true);
-    b.append_dir_all(name, dir).with_context(|| format!("cannot pack {}", dir.display()))?;
-    b.into_inner().with_context(|| format!("cannot pack {}", dir.display()))
+    b.append_dir_all(name, dir)
+        .with_context(|| format!("cannot pack {}", dir.display()))?;
+    b.into_inner()
+        .with_context(|| format!("cannot pack {}", dir.display()))
 }
 
 async fn json_response(resp: reqwest::Response, what: &str) -> Result<Value> {
     let status = resp.status();
-    let text = resp.text().await.with_context(|| format!("{what}: cannot read the response"))?;
+    let text = resp
+        .text()
+        .await
+        .with_context(|| format!("{what}: cannot read the response"))?;
     if !status.is_success() {
         let snippet: String = text.chars().take(300).collect();
         bail!("{what}: HTTP {status}: {snippet}");
@@ -77,7 +82,11 @@ fn id_of(v: &Value, what: &str) -> Result<String> {
 }
 
 /// Upload one scene and wait until the service reports it "ready"; returns its id.
-pub async fn upload_scene(client: &reqwest::Client, cfg: &EvalConfig, scene_id: &str) -> Result<String> {
+pub async fn upload_scene(
+    client: &reqwest::Client,
+    cfg: &EvalConfig,
+    scene_id: &str,
+) -> Result<String> {
     let dir = cfg.scenes.join(scene_id);
     let d2 = dir.clone();
     let name = scene_id.to_string();
@@ -93,7 +102,11 @@ pub async fn upload_scene(client: &reqwest::Client, cfg: &EvalConfig, scene_id: 
     let v = json_response(resp, &what).await?;
     let id = id_of(&v, &what)?;
     let start = Instant::now();
-    let mut status = v.get("status").and_then(|s| s.as_str()).unwrap_or_default().to_string();
+    let mut status = v
+        .get("status")
+        .and_then(|s| s.as_str())
+        .unwrap_or_default()
+        .to_string();
     loop {
         match status.as_str() {
             "ready" => return Ok(id),
@@ -101,18 +114,34 @@ pub async fn upload_scene(client: &reqwest::Client, cfg: &EvalConfig, scene_id: 
             _ => {}
         }
         if start.elapsed() > cfg.scene_timeout {
-            bail!("scene {scene_id} was not ready after {:?} (status {status:?})", cfg.scene_timeout);
+            bail!(
+                "scene {scene_id} was not ready after {:?} (status {status:?})",
+                cfg.scene_timeout
+            );
         }
         tokio::time::sleep(cfg.poll).await;
-        let resp = client.get(format!("{}/v1/scenes/{id}", cfg.server)).send().await.with_context(|| what.clone())?;
+        let resp = client
+            .get(format!("{}/v1/scenes/{id}", cfg.server))
+            .send()
+            .await
+            .with_context(|| what.clone())?;
         let v = json_response(resp, &what).await?;
-        status = v.get("status").and_then(|s| s.as_str()).unwrap_or_default().to_string();
+        status = v
+            .get("status")
+            .and_then(|s| s.as_str())
+            .unwrap_or_default()
+            .to_string();
     }
 }
 
 /// Submit one query and poll the job to a terminal status; returns the final job JSON and
 /// the client-side wall time.
-pub async fn run_job(client: &reqwest::Client, cfg: &EvalConfig, server_scene: &str, text: &str) -> Result<(Value, f64)> {
+pub async fn run_job(
+    client: &reqwest::Client,
+    cfg: &EvalConfig,
+    server_scene: &str,
+    text: &str,
+) -> Result<(Value, f64)> {
     let start = Instant::now();
     let resp = client
         .post(format!("{}/v1/jobs", cfg.server))
@@ -123,7 +152,10 @@ pub async fn run_job(client: &reqwest::Client, cfg: &EvalConfig, server_scene: &
     let mut job = json_response(resp, "submitting the job").await?;
     let id = id_of(&job, "submitting the job")?;
     loop {
-        let status = job.get("status").and_then(|s| s.as_str()).unwrap_or_default();
+        let status = job
+            .get("status")
+            .and_then(|s| s.as_str())
+            .unwrap_or_default();
         if matches!(status, "succeeded" | "failed" | "canceled") {
             return Ok((job, start.elapsed().as_secs_f64() * 1000.0));
         }
@@ -131,15 +163,24 @@ pub async fn run_job(client: &reqwest::Client, cfg: &EvalConfig, server_scene: &
             bail!("job {id} did not finish within {:?}", cfg.job_timeout);
         }
         tokio::time::sleep(cfg.poll).await;
-        let resp = client.get(format!("{}/v1/jobs/{id}", cfg.server)).send().await.context("polling the job")?;
+        let resp = client
+            .get(format!("{}/v1/jobs/{id}", cfg.server))
+            .send()
+            .await
+            .context("polling the job")?;
         job = json_response(resp, "polling the job").await?;
     }
 }
 
 fn tokens_of(u: &Value) -> u64 {
-    u.get("total_tokens").and_then(|t| t.as_u64()).unwrap_or_else(|| {
-        ["prompt_tokens", "completion_tokens"].iter().filter_map(|k| u.get(*k).and_then(|t| t.as_u64())).sum()
-    })
+    u.get("total_tokens")
+        .and_then(|t| t.as_u64())
+        .unwrap_or_else(|| {
+            ["prompt_tokens", "completion_tokens"]
+                .iter()
+                .filter_map(|k| u.get(*k).and_then(|t| t.as_u64()))
+                .sum()
+        })
 }
 
 /// VLM calls and tokens: `usage` of the job when present, else summed over trace steps
@@ -150,8 +191,16 @@ pub fn usage_of(job: &Value) -> (u32, u64) {
         return (u32::try_from(calls).unwrap_or(u32::MAX), tokens_of(u));
     }
     let (mut calls, mut tokens) = (0u32, 0u64);
-    for step in job.get("trace").and_then(|t| t.as_array()).into_iter().flatten() {
-        if let Some(u) = step.get("usage").or_else(|| step.get("outputs").and_then(|o| o.get("usage"))) {
+    for step in job
+        .get("trace")
+        .and_then(|t| t.as_array())
+        .into_iter()
+        .flatten()
+    {
+        if let Some(u) = step
+            .get("usage")
+            .or_else(|| step.get("outputs").and_then(|o| o.get("usage")))
+        {
             calls += 1;
             tokens += tokens_of(u);
         }
@@ -163,7 +212,9 @@ pub fn usage_of(job: &Value) -> (u32, u64) {
 pub fn box_of(job: &Value) -> Option<Aabb> {
     let b = job.get("result")?.get("box")?;
     let a: Aabb = serde_json::from_value(b.clone()).ok()?;
-    (0..3).all(|i| a.min[i].is_finite() && a.max[i].is_finite()).then_some(a)
+    (0..3)
+        .all(|i| a.min[i].is_finite() && a.max[i].is_finite())
+        .then_some(a)
 }
 
 /// Score a finished job (reads instance masks for the stage outcomes; blocking I/O).
@@ -173,7 +224,10 @@ pub fn observe(job: &Value, wall_ms: f64, scene_dir: &Path, target_id: u32) -> O
         (Some(t), Ok(Some(mut views))) => stages_from_trace(t, &mut views),
         _ => Default::default(),
     };
-    let latency_ms = ["latency_ms", "duration_ms"].iter().find_map(|k| job.get(*k).and_then(|v| v.as_f64())).unwrap_or(wall_ms);
+    let latency_ms = ["latency_ms", "duration_ms"]
+        .iter()
+        .find_map(|k| job.get(*k).and_then(|v| v.as_f64()))
+        .unwrap_or(wall_ms);
     let error = job.get("error").and_then(|e| match e {
         Value::Null => None,
         Value::String(s) => Some(s.clone()),
@@ -185,13 +239,25 @@ pub fn observe(job: &Value, wall_ms: f64, scene_dir: &Path, target_id: u32) -> O
         vlm_calls,
         tokens,
         latency_ms,
-        status: job.get("status").and_then(|s| s.as_str()).unwrap_or("unknown").to_string(),
+        status: job
+            .get("status")
+            .and_then(|s| s.as_str())
+            .unwrap_or("unknown")
+            .to_string(),
         error,
     }
 }
 
-async fn eval_one(client: &reqwest::Client, cfg: &EvalConfig, server_scene: &str, q: Query, objects: SceneObjects) -> Result<QueryRecord> {
-    let (job, wall) = run_job(client, cfg, server_scene, &q.text).await.with_context(|| format!("query {}", q.query_id))?;
+async fn eval_one(
+    client: &reqwest::Client,
+    cfg: &EvalConfig,
+    server_scene: &str,
+    q: Query,
+    objects: SceneObjects,
+) -> Result<QueryRecord> {
+    let (job, wall) = run_job(client, cfg, server_scene, &q.text)
+        .await
+        .with_context(|| format!("query {}", q.query_id))?;
     let scene_dir = cfg.scenes.join(&q.scene_id);
     tokio::task::spawn_blocking(move || {
         let obs = observe(&job, wall, &scene_dir, q.target_id);
@@ -205,8 +271,17 @@ async fn eval_one(client: &reqwest::Client, cfg: &EvalConfig, server_scene: &str
 pub async fn run(cfg: &EvalConfig) -> Result<EvalOutcome> {
     let ds = Dataset::load(&cfg.dataset)?;
     let mut log = ResultsLog::open(&cfg.out)?;
-    let selected: Vec<Query> = ds.queries.iter().take(cfg.limit.unwrap_or(usize::MAX)).cloned().collect();
-    let pending: Vec<Query> = selected.iter().filter(|q| !log.contains(&q.query_id)).cloned().collect();
+    let selected: Vec<Query> = ds
+        .queries
+        .iter()
+        .take(cfg.limit.unwrap_or(usize::MAX))
+        .cloned()
+        .collect();
+    let pending: Vec<Query> = selected
+        .iter()
+        .filter(|q| !log.contains(&q.query_id))
+        .cloned()
+        .collect();
     let skipped = selected.len() - pending.len();
     let mut scene_ids: Vec<String> = Vec::new();
     for q in &pending {
@@ -218,14 +293,18 @@ pub async fn run(cfg: &EvalConfig) -> Result<EvalOutcome> {
             scene_ids.push(q.scene_id.clone());
         }
     }
-    let client = reqwest::Client::builder().build().context("cannot build the HTTP client")?;
+    let client = reqwest::Client::builder()
+        .build()
+        .context("cannot build the HTTP client")?;
     let mut server_ids: HashMap<String, String> = HashMap::new();
     for s in &scene_ids {
         let id = upload_scene(&client, cfg, s).await?;
         server_ids.insert(s.clone(), id);
     }
     let bar = ProgressBar::new(pending.len() as u64);
-    if let Ok(style) = ProgressStyle::with_template("{bar:40} {pos}/{len} queries, {elapsed} elapsed, eta {eta} {msg}") {
+    if let Ok(style) = ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} queries, {elapsed} elapsed, eta {eta} {msg}",
+    ) {
         bar.set_style(style);
     }
     let ran = pending.len();
@@ -233,7 +312,14 @@ pub async fn run(cfg: &EvalConfig) -> Result<EvalOutcome> {
     let mut stream = futures::stream::iter(pending.into_iter().map(|q| {
         let client = &client;
         let server_scene = server_ids.get(&q.scene_id).cloned().unwrap_or_default();
-        let objects = ds.scenes.get(&q.scene_id).cloned().unwrap_or_else(|| SceneObjects { scene_id: q.scene_id.clone(), objects: vec![] });
+        let objects = ds
+            .scenes
+            .get(&q.scene_id)
+            .cloned()
+            .unwrap_or_else(|| SceneObjects {
+                scene_id: q.scene_id.clone(),
+                objects: vec![],
+            });
         async move { eval_one(client, cfg, &server_scene, q, objects).await }
     }))
     .buffer_unordered(jobs);
@@ -251,9 +337,21 @@ pub async fn run(cfg: &EvalConfig) -> Result<EvalOutcome> {
     }
     bar.finish_and_clear();
     drop(stream);
-    let selected_ids: std::collections::HashSet<&str> = selected.iter().map(|q| q.query_id.as_str()).collect();
-    let records: Vec<QueryRecord> = log.records().iter().filter(|r| selected_ids.contains(r.query_id.as_str())).cloned().collect();
+    let selected_ids: std::collections::HashSet<&str> =
+        selected.iter().map(|q| q.query_id.as_str()).collect();
+    let records: Vec<QueryRecord> = log
+        .records()
+        .iter()
+        .filter(|r| selected_ids.contains(r.query_id.as_str()))
+        .cloned()
+        .collect();
     let out = cfg.out.clone();
-    let (summary, _) = tokio::task::spawn_blocking(move || report::write_summary(&out, &records)).await??;
-    Ok(EvalOutcome { summary, ran: ran - errors.len(), skipped, errors })
+    let (summary, _) =
+        tokio::task::spawn_blocking(move || report::write_summary(&out, &records)).await??;
+    Ok(EvalOutcome {
+        summary,
+        ran: ran - errors.len(),
+        skipped,
+        errors,
+    })
 }

@@ -55,14 +55,25 @@ pub fn run(cmd: ConvertCommand) -> Result<()> {
     match cmd {
         ConvertCommand::ScannetGt { scans, scenes, out } => {
             let written = scannet::convert_scans(&scans, &scenes, &out)?;
-            println!("wrote objects for {written} scenes into {}", out.join("objects").display());
+            println!(
+                "wrote objects for {written} scenes into {}",
+                out.join("objects").display()
+            );
         }
-        ConvertCommand::Scanrefer { input, objects, out } => {
+        ConvertCommand::Scanrefer {
+            input,
+            objects,
+            out,
+        } => {
             let objs = ObjectsSource::new(&objects);
             let (queries, skipped) = scanrefer::convert(&input, &objs)?;
             finish(&out, &objs, &queries, skipped)?;
         }
-        ConvertCommand::Nr3d { input, objects, out } => {
+        ConvertCommand::Nr3d {
+            input,
+            objects,
+            out,
+        } => {
             let objs = ObjectsSource::new(&objects);
             let (queries, skipped) = nr3d::convert(&input, &objs)?;
             finish(&out, &objs, &queries, skipped)?;
@@ -75,9 +86,20 @@ fn finish(out: &Path, objs: &ObjectsSource, queries: &[Query], skipped: usize) -
     if queries.is_empty() {
         bail!("no query could be converted ({skipped} skipped: scene or object missing from the objects folder)");
     }
-    let scenes: Vec<SceneObjects> = objs.cache.borrow().values().filter_map(|s| s.clone()).collect();
+    let scenes: Vec<SceneObjects> = objs
+        .cache
+        .borrow()
+        .values()
+        .filter_map(|s| s.clone())
+        .collect();
     write_dataset(out, &scenes, queries)?;
-    println!("wrote {} queries ({} skipped) for {} scenes into {}", queries.len(), skipped, scenes.len(), out.display());
+    println!(
+        "wrote {} queries ({} skipped) for {} scenes into {}",
+        queries.len(),
+        skipped,
+        scenes.len(),
+        out.display()
+    );
     Ok(())
 }
 
@@ -92,7 +114,10 @@ impl ObjectsSource {
     pub fn new(dir: &Path) -> Self {
         let sub = dir.join("objects");
         let dir = if sub.is_dir() { sub } else { dir.to_path_buf() };
-        Self { dir, cache: Default::default() }
+        Self {
+            dir,
+            cache: Default::default(),
+        }
     }
 
     /// The scene's objects; `None` when the file does not exist. A broken file is an error.
@@ -102,12 +127,18 @@ impl ObjectsSource {
         }
         let path = self.dir.join(format!("{scene_id}.json"));
         let loaded = if path.is_file() {
-            let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-            Some(serde_json::from_str(&text).with_context(|| format!("{} is not a valid objects file", path.display()))?)
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            Some(
+                serde_json::from_str(&text)
+                    .with_context(|| format!("{} is not a valid objects file", path.display()))?,
+            )
         } else {
             None
         };
-        self.cache.borrow_mut().insert(scene_id.to_string(), loaded.clone());
+        self.cache
+            .borrow_mut()
+            .insert(scene_id.to_string(), loaded.clone());
         Ok(loaded)
     }
 }

@@ -7,8 +7,18 @@ use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 /// Words that make an utterance view-dependent (the ReferIt3D criterion).
-pub const VIEW_WORDS: [&str; 10] =
-    ["front", "behind", "back", "left", "right", "facing", "leftmost", "rightmost", "looking", "across"];
+pub const VIEW_WORDS: [&str; 10] = [
+    "front",
+    "behind",
+    "back",
+    "left",
+    "right",
+    "facing",
+    "leftmost",
+    "rightmost",
+    "looking",
+    "across",
+];
 
 /// Whether the utterance uses a viewpoint word.
 pub fn is_view_dependent(utterance: &str) -> bool {
@@ -24,8 +34,14 @@ pub fn stimulus_count(stimulus_id: &str) -> Option<usize> {
     stimulus_id.split('-').nth(2)?.parse().ok()
 }
 
-const FLAG_COLUMNS: [&str; 6] =
-    ["mentions_target_class", "uses_object_lang", "uses_spatial_lang", "uses_color_lang", "uses_shape_lang", "correct_guess"];
+const FLAG_COLUMNS: [&str; 6] = [
+    "mentions_target_class",
+    "uses_object_lang",
+    "uses_spatial_lang",
+    "uses_color_lang",
+    "uses_shape_lang",
+    "correct_guess",
+];
 
 fn parse_bool(s: &str) -> Option<bool> {
     match s.trim().to_ascii_lowercase().as_str() {
@@ -40,9 +56,17 @@ fn parse_bool(s: &str) -> Option<bool> {
 /// "view_dependent" from the utterance's words. Rows whose scene or object is missing
 /// from the objects folder are skipped and counted.
 pub fn convert(input: &Path, objects: &ObjectsSource) -> Result<(Vec<Query>, usize)> {
-    let mut rdr = csv::Reader::from_path(input).with_context(|| format!("cannot read {}", input.display()))?;
-    let headers = rdr.headers().with_context(|| format!("{}: no CSV header", input.display()))?.clone();
-    let col: HashMap<&str, usize> = headers.iter().enumerate().map(|(i, h)| (h.trim(), i)).collect();
+    let mut rdr = csv::Reader::from_path(input)
+        .with_context(|| format!("cannot read {}", input.display()))?;
+    let headers = rdr
+        .headers()
+        .with_context(|| format!("{}: no CSV header", input.display()))?
+        .clone();
+    let col: HashMap<&str, usize> = headers
+        .iter()
+        .enumerate()
+        .map(|(i, h)| (h.trim(), i))
+        .collect();
     for need in ["scan_id", "target_id", "utterance", "instance_type"] {
         if !col.contains_key(need) {
             bail!("{}: missing column {need:?}", input.display());
@@ -55,9 +79,14 @@ pub fn convert(input: &Path, objects: &ObjectsSource) -> Result<(Vec<Query>, usi
         let rec = rec.with_context(|| format!("{}: bad CSV row {}", input.display(), row + 2))?;
         let get = |k: &str| col.get(k).and_then(|&i| rec.get(i)).unwrap_or("").trim();
         let scene_id = get("scan_id").to_string();
-        let target_id: u32 = get("target_id")
-            .parse()
-            .with_context(|| format!("{}: row {}: target_id {:?} is not a number", input.display(), row + 2, get("target_id")))?;
+        let target_id: u32 = get("target_id").parse().with_context(|| {
+            format!(
+                "{}: row {}: target_id {:?} is not a number",
+                input.display(),
+                row + 2,
+                get("target_id")
+            )
+        })?;
         let Some(scene) = objects.get(&scene_id)? else {
             skipped += 1;
             continue;
@@ -66,11 +95,15 @@ pub fn convert(input: &Path, objects: &ObjectsSource) -> Result<(Vec<Query>, usi
             skipped += 1;
             continue;
         };
-        let count = stimulus_count(get("stimulus_id")).unwrap_or_else(|| scene.label_count(&target.label));
+        let count =
+            stimulus_count(get("stimulus_id")).unwrap_or_else(|| scene.label_count(&target.label));
         let utterance = get("utterance").to_string();
         let mut extra = serde_json::Map::new();
         extra.insert("hard".into(), (count > 2).into());
-        extra.insert("view_dependent".into(), is_view_dependent(&utterance).into());
+        extra.insert(
+            "view_dependent".into(),
+            is_view_dependent(&utterance).into(),
+        );
         extra.insert("instance_type".into(), get("instance_type").into());
         for k in FLAG_COLUMNS {
             if let Some(b) = parse_bool(get(k)) {
@@ -81,7 +114,11 @@ pub fn convert(input: &Path, objects: &ObjectsSource) -> Result<(Vec<Query>, usi
             "" => format!("nr3d_{row}"),
             a => format!("nr3d_{a}"),
         };
-        let query_id = if ids.contains(&base) { format!("{base}_{row}") } else { base };
+        let query_id = if ids.contains(&base) {
+            format!("{base}_{row}")
+        } else {
+            base
+        };
         ids.insert(query_id.clone());
         out.push(Query {
             scene_id,

@@ -54,16 +54,28 @@ pub fn read_ply_vertices(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
     if before_vertex_bytes {
         bail!("PLY elements before the vertices are not supported");
     }
-    let pos = |name: &str| props.iter().position(|p| p.1 == name).with_context(|| format!("PLY vertices have no {name}"));
+    let pos = |name: &str| {
+        props
+            .iter()
+            .position(|p| p.1 == name)
+            .with_context(|| format!("PLY vertices have no {name}"))
+    };
     let idx = [pos("x")?, pos("y")?, pos("z")?];
     match format {
         "ascii" => {
             let text = std::str::from_utf8(&bytes[body..]).context("ascii PLY body is not text")?;
             let mut out = Vec::with_capacity(n);
-            for (i, line) in text.lines().filter(|l| !l.trim().is_empty()).take(n).enumerate() {
+            for (i, line) in text
+                .lines()
+                .filter(|l| !l.trim().is_empty())
+                .take(n)
+                .enumerate()
+            {
                 let v: Vec<&str> = line.split_whitespace().collect();
                 let g = |k: usize| -> Result<f64> {
-                    v.get(k).and_then(|s| s.parse().ok()).with_context(|| format!("PLY vertex {i}: bad value"))
+                    v.get(k)
+                        .and_then(|s| s.parse().ok())
+                        .with_context(|| format!("PLY vertex {i}: bad value"))
                 };
                 out.push([g(idx[0])?, g(idx[1])?, g(idx[2])?]);
             }
@@ -73,11 +85,23 @@ pub fn read_ply_vertices(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
             Ok(out)
         }
         "binary_little_endian" => {
-            let sizes: Vec<usize> = props.iter().map(|p| type_size(&p.0)).collect::<Result<_>>()?;
+            let sizes: Vec<usize> = props
+                .iter()
+                .map(|p| type_size(&p.0))
+                .collect::<Result<_>>()?;
             let stride: usize = sizes.iter().sum();
-            let offs: Vec<usize> = sizes.iter().scan(0, |acc, s| { let o = *acc; *acc += s; Some(o) }).collect();
+            let offs: Vec<usize> = sizes
+                .iter()
+                .scan(0, |acc, s| {
+                    let o = *acc;
+                    *acc += s;
+                    Some(o)
+                })
+                .collect();
             let need = n.checked_mul(stride).context("PLY too large")?;
-            let data = bytes.get(body..body + need).context("PLY is truncated: fewer vertex bytes than the header says")?;
+            let data = bytes
+                .get(body..body + need)
+                .context("PLY is truncated: fewer vertex bytes than the header says")?;
             let read = |rec: &[u8], k: usize| -> Result<f64> {
                 let b = &rec[offs[k]..offs[k] + sizes[k]];
                 Ok(match props[k].0.as_str() {
@@ -86,7 +110,9 @@ pub fn read_ply_vertices(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
                     t => bail!("PLY coordinate type {t} is not supported"),
                 })
             };
-            data.chunks_exact(stride).map(|rec| Ok([read(rec, idx[0])?, read(rec, idx[1])?, read(rec, idx[2])?])).collect()
+            data.chunks_exact(stride)
+                .map(|rec| Ok([read(rec, idx[0])?, read(rec, idx[1])?, read(rec, idx[2])?]))
+                .collect()
         }
         f => bail!("PLY format {f:?} is not supported (ascii or binary_little_endian)"),
     }
@@ -140,8 +166,10 @@ struct Aggregation {
 
 #[derive(Deserialize)]
 struct SegGroup {
-    #[serde(rename = "objectId", alias = "id")]
-    object_id: u32,
+    #[serde(rename = "objectId", default)]
+    object_id: Option<u32>,
+    #[serde(default)]
+    id: Option<u32>,
     label: String,
     segments: Vec<i64>,
 }
@@ -155,20 +183,30 @@ pub fn scene_objects(scan_dir: &Path, scene_id: &str) -> Result<SceneObjects> {
     let ply = read_ply_vertices(&read(&scan_dir.join(format!("{scene_id}_vh_clean_2.ply")))?)
         .with_context(|| format!("{scene_id}_vh_clean_2.ply"))?;
     let segs_path = scan_dir.join(format!("{scene_id}_vh_clean_2.0.010000.segs.json"));
-    let segs: Segs = serde_json::from_slice(&read(&segs_path)?).with_context(|| format!("{} is not a segs file", segs_path.display()))?;
+    let segs: Segs = serde_json::from_slice(&read(&segs_path)?)
+        .with_context(|| format!("{} is not a segs file", segs_path.display()))?;
     if segs.seg_indices.len() != ply.len() {
-        bail!("{}: {} segment indices for {} vertices", segs_path.display(), segs.seg_indices.len(), ply.len());
+        bail!(
+            "{}: {} segment indices for {} vertices",
+            segs_path.display(),
+            segs.seg_indices.len(),
+            ply.len()
+        );
     }
-    let agg_path = [format!("{scene_id}.aggregation.json"), format!("{scene_id}_vh_clean.aggregation.json")]
-        .iter()
-        .map(|n| scan_dir.join(n))
-        .find(|p| p.is_file())
-        .with_context(|| format!("no {scene_id}.aggregation.json in {}", scan_dir.display()))?;
-    let agg: Aggregation =
-        serde_json::from_slice(&read(&agg_path)?).with_context(|| format!("{} is not an aggregation file", agg_path.display()))?;
+    let agg_path = [
+        format!("{scene_id}.aggregation.json"),
+        format!("{scene_id}_vh_clean.aggregation.json"),
+    ]
+    .iter()
+    .map(|n| scan_dir.join(n))
+    .find(|p| p.is_file())
+    .with_context(|| format!("no {scene_id}.aggregation.json in {}", scan_dir.display()))?;
+    let agg: Aggregation = serde_json::from_slice(&read(&agg_path)?)
+        .with_context(|| format!("{} is not an aggregation file", agg_path.display()))?;
     let meta = scan_dir.join(format!("{scene_id}.txt"));
     let align = if meta.is_file() {
-        parse_axis_alignment(&String::from_utf8_lossy(&read(&meta)?)).with_context(|| format!("in {}", meta.display()))?
+        parse_axis_alignment(&String::from_utf8_lossy(&read(&meta)?))
+            .with_context(|| format!("in {}", meta.display()))?
     } else {
         Matrix4::identity()
     };
@@ -185,12 +223,23 @@ pub fn scene_objects(scan_dir: &Path, scene_id: &str) -> Result<SceneObjects> {
             .flatten()
             .map(|&v| align.transform_point(&Point3::from(ply[v])))
             .collect();
+        let id = g
+            .object_id
+            .or(g.id)
+            .with_context(|| format!("{}: a segGroup has no objectId", agg_path.display()))?;
         if let Some(aabb) = Aabb::from_points(&pts) {
-            objects.push(SceneObject { id: g.object_id, label: g.label.clone(), aabb });
+            objects.push(SceneObject {
+                id,
+                label: g.label.clone(),
+                aabb,
+            });
         }
     }
     objects.sort_by_key(|o| o.id);
-    Ok(SceneObjects { scene_id: scene_id.to_string(), objects })
+    Ok(SceneObjects {
+        scene_id: scene_id.to_string(),
+        objects,
+    })
 }
 
 /// Convert the chosen scenes (all sub-folders when `scenes` is empty) into `out/objects/`.

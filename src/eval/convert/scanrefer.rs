@@ -36,16 +36,20 @@ struct Entry {
 /// Convert a ScanRefer file; returns the queries and how many entries were skipped
 /// because their scene or object is not in the objects folder.
 pub fn convert(input: &Path, objects: &ObjectsSource) -> Result<(Vec<Query>, usize)> {
-    let text = std::fs::read_to_string(input).with_context(|| format!("cannot read {}", input.display()))?;
-    let entries: Vec<Entry> =
-        serde_json::from_str(&text).with_context(|| format!("{} is not a ScanRefer JSON list", input.display()))?;
+    let text = std::fs::read_to_string(input)
+        .with_context(|| format!("cannot read {}", input.display()))?;
+    let entries: Vec<Entry> = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a ScanRefer JSON list", input.display()))?;
     let mut out = Vec::new();
     let mut skipped = 0;
     for (i, e) in entries.iter().enumerate() {
         let oid = e.object_id.text();
-        let target_id: u32 = oid
-            .parse()
-            .with_context(|| format!("{}: entry {i}: object_id {oid:?} is not a number", input.display()))?;
+        let target_id: u32 = oid.parse().with_context(|| {
+            format!(
+                "{}: entry {i}: object_id {oid:?} is not a number",
+                input.display()
+            )
+        })?;
         let Some(scene) = objects.get(&e.scene_id)? else {
             skipped += 1;
             continue;
