@@ -76,7 +76,8 @@ pub fn render_iou_histogram(records: &[QueryRecord], path: &Path) -> Result<()> 
         (Subset::Multiple, RGBColor(230, 120, 20), "multiple"),
     ]) {
         let h = histogram(records, subset);
-        let ymax = (*h.iter().max().unwrap_or(&0)).max(1) as f64 * 1.1;
+        let top = (*h.iter().max().unwrap_or(&0)).max(1);
+        let ymax = top as f64 + 1.0;
         let mut builder = ChartBuilder::on(panel);
         builder.margin(15);
         if text {
@@ -93,6 +94,8 @@ pub fn render_iou_histogram(records: &[QueryRecord], path: &Path) -> Result<()> 
             chart
                 .configure_mesh()
                 .label_style((FONT_NAME, 14))
+                .y_labels((top + 2).min(11))
+                .y_label_formatter(&|v| format!("{v:.0}"))
                 .x_desc("3D IoU with the target box")
                 .y_desc("queries")
                 .axis_desc_style((FONT_NAME, 15))
