@@ -19,10 +19,7 @@ impl Aabb {
     pub fn from_points<'a, I: IntoIterator<Item = &'a Point3<f64>>>(points: I) -> Option<Self> {
         let mut it = points.into_iter();
         let first = it.next()?;
-        let mut b = Aabb {
-            min: [first.x, first.y, first.z],
-            max: [first.x, first.y, first.z],
-        };
+        let mut b = Aabb { min: [first.x, first.y, first.z], max: [first.x, first.y, first.z] };
         for p in it {
             for i in 0..3 {
                 b.min[i] = b.min[i].min(p[i]);

@@ -23,14 +23,7 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// From the top-left 3x3 of a 4x4 (or 3x3) intrinsic matrix.
     pub fn from_matrix(k: &Matrix4<f64>, width: u32, height: u32) -> Self {
-        Self {
-            fx: k[(0, 0)],
-            fy: k[(1, 1)],
-            cx: k[(0, 2)],
-            cy: k[(1, 2)],
-            width,
-            height,
-        }
+        Self { fx: k[(0, 0)], fy: k[(1, 1)], cx: k[(0, 2)], cy: k[(1, 2)], width, height }
     }
 
     pub fn matrix3(&self) -> Matrix3<f64> {
@@ -49,25 +42,14 @@ impl Intrinsics {
         if p.z <= 1e-9 {
             return None;
         }
-        Some((
-            self.fx * p.x / p.z + self.cx,
-            self.fy * p.y / p.z + self.cy,
-            p.z,
-        ))
+        Some((self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy, p.z))
     }
 
     /// The same camera for an image resized to `width` x `height`.
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
-        Self {
-            fx: self.fx * sx,
-            fy: self.fy * sy,
-            cx: self.cx * sx,
-            cy: self.cy * sy,
-            width,
-            height,
-        }
+        Self { fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, width, height }
     }
 }
 
@@ -82,11 +64,7 @@ pub struct DepthMap {
 impl DepthMap {
     pub fn new(width: u32, height: u32, data: Vec<u16>) -> Self {
         debug_assert_eq!(data.len(), width as usize * height as usize);
-        Self {
-            width,
-            height,
-            data,
-        }
+        Self { width, height, data }
     }
 
     /// Raw millimetre value at integer pixel (x, y); 0 outside the image.
@@ -127,10 +105,7 @@ impl FrameCamera {
         let (wd, hd) = self.depth_size;
         let x = (u * wd as f64 / self.color.width as f64).round();
         let y = (v * hd as f64 / self.color.height as f64).round();
-        (
-            x.clamp(0.0, (wd - 1) as f64) as u32,
-            y.clamp(0.0, (hd - 1) as f64) as u32,
-        )
+        (x.clamp(0.0, (wd - 1) as f64) as u32, y.clamp(0.0, (hd - 1) as f64) as u32)
     }
 }
 

@@ -12,18 +12,12 @@ pub struct Mask {
 
 impl Mask {
     pub fn new(width: u32, height: u32) -> Self {
-        Self {
-            width,
-            height,
-            data: vec![false; width as usize * height as usize],
-        }
+        Self { width, height, data: vec![false; width as usize * height as usize] }
     }
 
     #[inline]
     pub fn get(&self, x: u32, y: u32) -> bool {
-        x < self.width
-            && y < self.height
-            && self.data[y as usize * self.width as usize + x as usize]
+        x < self.width && y < self.height && self.data[y as usize * self.width as usize + x as usize]
     }
 
     #[inline]
@@ -59,10 +53,6 @@ impl Mask {
             i += (*a && *b) as usize;
             u += (*a || *b) as usize;
         }
-        if u == 0 {
-            0.0
-        } else {
-            i as f64 / u as f64
-        }
+        if u == 0 { 0.0 } else { i as f64 / u as f64 }
     }
 }
