@@ -141,7 +141,11 @@ impl Dataset {
                 if !ids.insert(o.id) {
                     bail!("scene {}: object id {} appears twice", so.scene_id, o.id);
                 }
-                if (0..3).any(|i| !(o.aabb.min[i] <= o.aabb.max[i]) || !o.aabb.max[i].is_finite()) {
+                if (0..3).any(|i| {
+                    !o.aabb.min[i].is_finite()
+                        || !o.aabb.max[i].is_finite()
+                        || o.aabb.min[i] > o.aabb.max[i]
+                }) {
                     bail!(
                         "scene {}: object {} has an invalid box (min > max or not finite)",
                         so.scene_id,
@@ -314,7 +318,12 @@ mod tests {
             subset: Subset::Unique,
             extra: Default::default(),
         };
-        write_dataset(dir.path(), &[so.clone()], &[q.clone()]).unwrap();
+        write_dataset(
+            dir.path(),
+            std::slice::from_ref(&so),
+            std::slice::from_ref(&q),
+        )
+        .unwrap();
         let ds = Dataset::load(dir.path()).unwrap();
         assert_eq!(ds.scenes["a"], so);
         assert_eq!(ds.queries, vec![q]);

@@ -26,6 +26,9 @@ use std::path::{Path, PathBuf};
 /// 2D IoU needed for a detection to count as the target.
 pub const BOX2D_IOU: f64 = 0.5;
 
+/// A target mask (instance-mask pixels) with the colour image size.
+type LoadedMask = (Mask, (u32, u32));
+
 /// Ground-truth view of one target in one scene, read lazily from instance masks.
 pub struct TargetViews {
     instance_dir: PathBuf,
@@ -33,7 +36,7 @@ pub struct TargetViews {
     /// Frame names sorted by numeric value.
     frames: Vec<String>,
     target_id: u16,
-    cache: HashMap<String, Option<(Mask, (u32, u32))>>,
+    cache: HashMap<String, Option<LoadedMask>>,
 }
 
 /// Frame names of a scene directory (either layout), sorted numerically.
@@ -104,7 +107,7 @@ impl TargetViews {
     }
 
     /// Target mask in instance-mask pixels and the colour image size, if readable.
-    fn target_mask(&mut self, frame: &str) -> Option<&(Mask, (u32, u32))> {
+    fn target_mask(&mut self, frame: &str) -> Option<&LoadedMask> {
         if !self.cache.contains_key(frame) {
             let loaded = self.load(frame);
             self.cache.insert(frame.to_string(), loaded);
@@ -112,7 +115,7 @@ impl TargetViews {
         self.cache.get(frame).and_then(|m| m.as_ref())
     }
 
-    fn load(&self, frame: &str) -> Option<(Mask, (u32, u32))> {
+    fn load(&self, frame: &str) -> Option<LoadedMask> {
         let img = image::open(self.instance_dir.join(format!("{frame}.png")))
             .ok()?
             .into_luma16();
