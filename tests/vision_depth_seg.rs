@@ -234,6 +234,7 @@ fn depth_segmenter_masks_match_ground_truth() {
     }
     eprintln!("depth segmenter: mean mask IoU {mean:.3} over {} objects >= 40x40 px (box baseline {base:.3}, worst {worst:.3})", r.len());
     assert!(mean >= 0.75, "mean IoU {mean:.3} below 0.75");
+    assert!(worst >= 0.5, "one object failed badly: IoU {worst:.3}");
     assert!(
         mean > base + 0.05,
         "depth masks ({mean:.3}) should beat the box ({base:.3})"
