@@ -1,0 +1,418 @@
+//! Model-free box → mask for posed RGB-D frames.
+//!
+//! Inside the box: (1) a depth histogram, weighted towards the box centre, gives the surface
+//! modes. (2) For each strong mode from near to far, seeds at that depth in the central part
+//! of the box grow over 4-neighbours (also a little beyond the box) while the depth step
+//! stays under a noise- and distance-dependent limit. (3) Where the growth leaked onto the
+//! supporting surface (floor, table top), the points within a few cm of the lowest height
+//! (gravity = the output frame's +z) are cut and the growth is redone. (4) The first mode
+//! whose surface stays mostly inside the box is the object: occluders in front and the
+//! background behind both run on past a tight box. (5) Small holes (missing depth) are closed
+//! and depth-less pixels whose colour matches the region are added back.
+
+use std::collections::VecDeque;
+
+use anyhow::{bail, Result};
+
+use super::{SegmentInput, Segmenter};
+use crate::geometry::camera::transform_point;
+use crate::geometry::mask::Mask;
+
+/// Parameters of the depth segmenter.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthSegmenter {
+    /// Histogram bin width (m).
+    pub bin: f64,
+    /// A mode is strong when its centre-weighted mass is at least this fraction of the largest.
+    pub strong_mode: f64,
+    /// Allowed depth step between neighbouring depth pixels: `step_abs + step_rel * z` (m).
+    pub step_abs: f64,
+    pub step_rel: f64,
+    /// Points lower than this above the region's lowest point are treated as support (m).
+    pub support_band: f64,
+    /// Margin around the box (fraction of its size) used to see whether a surface ends there.
+    pub margin: f64,
+    /// A surface with more than this fraction of its cells outside the box is not the object.
+    pub max_outside: f64,
+    /// Upper bound on grid cells (larger boxes are subsampled).
+    pub max_cells: usize,
+}
+
+impl Default for DepthSegmenter {
+    fn default() -> Self {
+        Self {
+            bin: 0.03,
+            strong_mode: 0.35,
+            step_abs: 0.02,
+            step_rel: 0.025,
+            support_band: 0.03,
+            margin: 0.12,
+            max_outside: 0.35,
+            max_cells: 200_000,
+        }
+    }
+}
+
+/// A grid of sample cells (stride `s` colour pixels) over the box plus a margin.
+struct Grid {
+    x0: u32,
+    y0: u32,
+    s: u32,
+    w: usize,
+    h: usize,
+    /// depth in metres (0 = none)
+    z: Vec<f64>,
+    /// height along the output frame's z axis
+    height: Vec<f64>,
+    rgb: Vec<[u8; 3]>,
+    /// cell centre inside the query box
+    inb: Vec<bool>,
+    /// grid rectangle of the box: gx0..gx1, gy0..gy1
+    b: [usize; 4],
+}
+
+impl Grid {
+    fn neighbours(&self, i: usize) -> [Option<usize>; 4] {
+        let (x, y) = (i % self.w, i / self.w);
+        [
+            (x > 0).then(|| i - 1),
+            (x + 1 < self.w).then(|| i + 1),
+            (y > 0).then(|| i - self.w),
+            (y + 1 < self.h).then(|| i + self.w),
+        ]
+    }
+}
+
+impl DepthSegmenter {
+    fn grid(&self, input: &SegmentInput<'_>, bbox: [f32; 4]) -> Option<Grid> {
+        let (cw, ch) = input.color.dimensions();
+        let bx0 = bbox[0].max(0.0).floor() as u32;
+        let by0 = bbox[1].max(0.0).floor() as u32;
+        let bx1 = (bbox[2].ceil().max(0.0) as u32).min(cw);
+        let by1 = (bbox[3].ceil().max(0.0) as u32).min(ch);
+        if bx1 <= bx0 || by1 <= by0 {
+            return None;
+        }
+        let mx = ((bx1 - bx0) as f64 * self.margin).ceil() as u32;
+        let my = ((by1 - by0) as f64 * self.margin).ceil() as u32;
+        let (x0, y0) = (bx0.saturating_sub(mx), by0.saturating_sub(my));
+        let (x1, y1) = ((bx1 + mx).min(cw), (by1 + my).min(ch));
+        let area = ((x1 - x0) * (y1 - y0)) as f64;
+        let s = ((area / self.max_cells as f64).sqrt().ceil() as u32).max(1);
+        let w = ((x1 - x0) as usize).div_ceil(s as usize);
+        let h = ((y1 - y0) as usize).div_ceil(s as usize);
+        let cam = input.camera;
+        let to_out = cam.cam_to_out();
+        let n = w * h;
+        let (mut z, mut height, mut rgb, mut inb) = (
+            vec![0.0; n],
+            vec![0.0; n],
+            vec![[0u8; 3]; n],
+            vec![false; n],
+        );
+        let mut b = [usize::MAX, usize::MAX, 0, 0];
+        for gy in 0..h {
+            for gx in 0..w {
+                let u = (x0 + gx as u32 * s + s / 2).min(x1 - 1);
+                let v = (y0 + gy as u32 * s + s / 2).min(y1 - 1);
+                let i = gy * w + gx;
+                inb[i] = (bx0..bx1).contains(&u) && (by0..by1).contains(&v);
+                if inb[i] {
+                    b = [
+                        b[0].min(gx),
+                        b[1].min(gy),
+                        b[2].max(gx + 1),
+                        b[3].max(gy + 1),
+                    ];
+                }
+                rgb[i] = input.color.get_pixel(u, v).0;
+                let (dx, dy) = cam.depth_pixel_for_color(u as f64, v as f64);
+                let d = input.depth.get(dx, dy);
+                if d == 0 {
+                    continue;
+                }
+                let zm = d as f64 / 1000.0;
+                z[i] = zm;
+                let p = match &cam.depth {
+                    Some(k) => k.unproject(dx as f64, dy as f64, zm),
+                    None => cam.color.unproject(u as f64, v as f64, zm),
+                };
+                height[i] = transform_point(&to_out, &p).z;
+            }
+        }
+        (b[0] < b[2]).then_some(Grid {
+            x0,
+            y0,
+            s,
+            w,
+            h,
+            z,
+            height,
+            rgb,
+            inb,
+            b,
+        })
+    }
+
+    /// Depths of the strong, centre-weighted histogram modes inside the box, near to far.
+    fn modes(&self, g: &Grid) -> Vec<f64> {
+        let valid: Vec<f64> = (0..g.z.len())
+            .filter(|&i| g.inb[i] && g.z[i] > 0.0)
+            .map(|i| g.z[i])
+            .collect();
+        if valid.is_empty() {
+            return Vec::new();
+        }
+        let zmin = valid.iter().copied().fold(f64::INFINITY, f64::min);
+        let zmax = valid.iter().copied().fold(0.0, f64::max);
+        let nb = (((zmax - zmin) / self.bin).floor() as usize + 1).min(2000);
+        let mut hist = vec![0.0; nb];
+        let [bx0, by0, bx1, by1] = g.b;
+        let (cx, cy) = ((bx0 + bx1) as f64 / 2.0, (by0 + by1) as f64 / 2.0);
+        let (sx, sy) = (
+            ((bx1 - bx0) as f64 * 0.35).max(1.0),
+            ((by1 - by0) as f64 * 0.35).max(1.0),
+        );
+        for i in (0..g.z.len()).filter(|&i| g.inb[i] && g.z[i] > 0.0) {
+            let (gx, gy) = ((i % g.w) as f64 + 0.5, (i / g.w) as f64 + 0.5);
+            let (dx, dy) = ((gx - cx) / sx, (gy - cy) / sy);
+            hist[(((g.z[i] - zmin) / self.bin) as usize).min(nb - 1)] +=
+                (-0.5 * (dx * dx + dy * dy)).exp();
+        }
+        let k = [1.0, 2.0, 3.0, 2.0, 1.0];
+        let sm: Vec<f64> = (0..nb)
+            .map(|i| {
+                (0..5)
+                    .filter_map(|j| {
+                        (i + j)
+                            .checked_sub(2)
+                            .filter(|&t| t < nb)
+                            .map(|t| hist[t] * k[j])
+                    })
+                    .sum()
+            })
+            .collect();
+        let peak = sm.iter().copied().fold(0.0, f64::max);
+        let is_mode =
+            |i: usize| (i == 0 || sm[i] >= sm[i - 1]) && (i + 1 == nb || sm[i] > sm[i + 1]);
+        (0..nb)
+            .filter(|&i| is_mode(i) && sm[i] >= self.strong_mode * peak)
+            .map(|i| zmin + (i as f64 + 0.5) * self.bin)
+            .collect()
+    }
+
+    /// Grow from seeds at the target depth (central part of the box first).
+    fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool]) -> Vec<bool> {
+        let tol = 0.05 + 0.03 * target;
+        let near =
+            |i: usize| g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i];
+        let [bx0, by0, bx1, by1] = g.b;
+        let (qx, qy) = ((bx1 - bx0) / 4, (by1 - by0) / 4);
+        let mut seeds: Vec<usize> = Vec::new();
+        for gy in by0 + qy..(by1 - qy).max(by0 + qy + 1).min(g.h) {
+            for gx in bx0 + qx..(bx1 - qx).max(bx0 + qx + 1).min(g.w) {
+                let i = gy * g.w + gx;
+                if near(i) {
+                    seeds.push(i);
+                }
+            }
+        }
+        if seeds.is_empty() {
+            seeds = (0..g.z.len()).filter(|&i| near(i)).collect();
+        }
+        let mut region = vec![false; g.z.len()];
+        let mut queue: VecDeque<usize> = VecDeque::new();
+        for &s in &seeds {
+            region[s] = true;
+            queue.push_back(s);
+        }
+        while let Some(i) = queue.pop_front() {
+            let lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
+            for j in g.neighbours(i).into_iter().flatten() {
+                if !region[j] && !blocked[j] && g.z[j] > 0.0 && (g.z[j] - g.z[i]).abs() <= lim {
+                    region[j] = true;
+                    queue.push_back(j);
+                }
+            }
+        }
+        region
+    }
+
+    /// Cells of the supporting surface if the region leaked onto it.
+    fn support_cut(&self, g: &Grid, region: &[bool]) -> Option<Vec<bool>> {
+        let mut hs: Vec<f64> = (0..region.len())
+            .filter(|&i| region[i] && g.inb[i])
+            .map(|i| g.height[i])
+            .collect();
+        if hs.len() < 20 {
+            return None;
+        }
+        hs.sort_by(f64::total_cmp);
+        let low = hs[hs.len() / 50];
+        let cut: Vec<bool> = (0..region.len())
+            .map(|i| region[i] && g.height[i] < low + self.support_band)
+            .collect();
+        let n_cut = (0..cut.len()).filter(|&i| cut[i] && g.inb[i]).count();
+        let frac = n_cut as f64 / hs.len() as f64;
+        // a support surface spans many rows of the box; the object's own bottom strip does not
+        let [bx0, by0, bx1, by1] = g.b;
+        let rows: Vec<usize> = (by0..by1)
+            .filter(|&y| (bx0..bx1).any(|x| cut[y * g.w + x]))
+            .collect();
+        let span = match (rows.first(), rows.last()) {
+            (Some(a), Some(b)) => b - a + 1,
+            _ => 0,
+        };
+        (frac > 0.03 && frac < 0.7 && span as f64 >= 0.15 * (by1 - by0) as f64).then_some(cut)
+    }
+
+    /// Region for one mode, with the support removed; and its fraction outside the box.
+    fn surface(&self, g: &Grid, target: f64, cell_px: f64) -> (Vec<bool>, f64) {
+        let none = vec![false; g.z.len()];
+        let mut region = self.grow(g, target, cell_px, &none);
+        if let Some(cut) = self.support_cut(g, &region) {
+            let regrown = self.grow(g, target, cell_px, &cut);
+            if regrown.iter().any(|&b| b) {
+                region = regrown;
+            }
+        }
+        let total = region.iter().filter(|&&b| b).count();
+        let outside = (0..region.len())
+            .filter(|&i| region[i] && !g.inb[i])
+            .count();
+        (
+            region,
+            if total == 0 {
+                1.0
+            } else {
+                outside as f64 / total as f64
+            },
+        )
+    }
+
+    /// Keep the largest 4-connected component of `region`.
+    fn largest_component(g: &Grid, region: &[bool]) -> Vec<bool> {
+        let mut label = vec![0u32; region.len()];
+        let (mut best, mut best_n, mut next) = (0u32, 0usize, 0u32);
+        for start in 0..region.len() {
+            if !region[start] || label[start] != 0 {
+                continue;
+            }
+            next += 1;
+            let mut n = 0;
+            let mut stack = vec![start];
+            label[start] = next;
+            while let Some(i) = stack.pop() {
+                n += 1;
+                for j in g.neighbours(i).into_iter().flatten() {
+                    if region[j] && label[j] == 0 {
+                        label[j] = next;
+                        stack.push(j);
+                    }
+                }
+            }
+            if n > best_n {
+                best_n = n;
+                best = next;
+            }
+        }
+        label.iter().map(|&l| l != 0 && l == best).collect()
+    }
+
+    /// Close small holes: depth-less cells with at least 3 region neighbours, or whose colour
+    /// is close to the region's mean colour and touch it.
+    fn fill_holes(g: &Grid, region: &mut [bool]) {
+        let n = region.iter().filter(|&&b| b).count().max(1) as f64;
+        let mut mean = [0.0f64; 3];
+        for i in (0..region.len()).filter(|&i| region[i]) {
+            for c in 0..3 {
+                mean[c] += g.rgb[i][c] as f64 / n;
+            }
+        }
+        for _ in 0..3 {
+            let snapshot = region.to_vec();
+            for i in 0..region.len() {
+                if snapshot[i] || g.z[i] > 0.0 || !g.inb[i] {
+                    continue;
+                }
+                let k = g
+                    .neighbours(i)
+                    .into_iter()
+                    .flatten()
+                    .filter(|&j| snapshot[j])
+                    .count();
+                let dc: f64 = (0..3).map(|c| (g.rgb[i][c] as f64 - mean[c]).abs()).sum();
+                if k >= 3 || (k >= 1 && dc < 45.0) {
+                    region[i] = true;
+                }
+            }
+        }
+    }
+}
+
+impl Segmenter for DepthSegmenter {
+    fn name(&self) -> String {
+        "depth".into()
+    }
+
+    fn segment(&self, input: &SegmentInput<'_>, bbox: [f32; 4]) -> Result<Mask> {
+        let (cw, ch) = input.color.dimensions();
+        if input.camera.color.width != cw || input.camera.color.height != ch {
+            bail!(
+                "colour image is {cw}x{ch} but the camera says {}x{}",
+                input.camera.color.width,
+                input.camera.color.height
+            );
+        }
+        if input.depth.data.len() != input.depth.width as usize * input.depth.height as usize {
+            bail!(
+                "depth buffer does not match its {}x{} size",
+                input.depth.width,
+                input.depth.height
+            );
+        }
+        let Some(g) = self.grid(input, bbox) else {
+            return Ok(Mask::new(cw, ch));
+        };
+        let modes = self.modes(&g);
+        if modes.is_empty() {
+            // no depth at all in the box: the box is the best guess
+            return Ok(Mask::from_box(cw, ch, bbox));
+        }
+        let cell_px = g.s as f64 * input.depth.width as f64 / cw as f64;
+        let mut chosen: Option<Vec<bool>> = None;
+        let mut fallback: Option<Vec<bool>> = None;
+        for &m in modes.iter().take(4) {
+            let (region, outside) = self.surface(&g, m, cell_px);
+            if outside <= self.max_outside {
+                chosen = Some(region);
+                break;
+            }
+            fallback.get_or_insert(region);
+        }
+        let Some(region) = chosen.or(fallback) else {
+            return Ok(Mask::from_box(cw, ch, bbox));
+        };
+        let inside: Vec<bool> = (0..region.len()).map(|i| region[i] && g.inb[i]).collect();
+        let mut region = Self::largest_component(&g, &inside);
+        Self::fill_holes(&g, &mut region);
+        let mut mask = Mask::new(cw, ch);
+        let (bx1, by1) = (bbox[2].ceil(), bbox[3].ceil());
+        for i in (0..region.len()).filter(|&i| region[i]) {
+            let (gx, gy) = ((i % g.w) as u32, (i / g.w) as u32);
+            for dy in 0..g.s {
+                for dx in 0..g.s {
+                    let (x, y) = (g.x0 + gx * g.s + dx, g.y0 + gy * g.s + dy);
+                    if (x as f32) >= bbox[0].floor()
+                        && (y as f32) >= bbox[1].floor()
+                        && (x as f32) < bx1
+                        && (y as f32) < by1
+                    {
+                        mask.set(x, y, true);
+                    }
+                }
+            }
+        }
+        Ok(mask)
+    }
+}

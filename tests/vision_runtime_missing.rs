@@ -1,0 +1,38 @@
+//! A missing runtime library is reported (status and build errors), never a panic.
+//! Its own test binary: the library must not have been loaded in this process.
+
+use std::path::PathBuf;
+
+use grounder::vision::{build_detector, build_segmenter, runtime, VisionConfig};
+
+#[test]
+fn missing_library_is_reported_with_its_path() {
+    runtime::set_configured_path(Some(PathBuf::from(
+        "/nonexistent/ort/libonnxruntime.so.1.31.1",
+    )));
+    let st = runtime::status();
+    let runtime::RuntimeStatus::Missing { message } = st else {
+        panic!("runtime should be missing: {st:?}")
+    };
+    assert!(
+        message.contains("/nonexistent/ort/libonnxruntime.so.1.31.1"),
+        "{message}"
+    );
+    assert!(message.contains("setup-ort.sh"), "{message}");
+
+    let cfg = VisionConfig {
+        model_dir: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"),
+        ..Default::default()
+    };
+    let err = build_detector("centernet", &cfg)
+        .err()
+        .expect("no runtime, no detector");
+    assert!(
+        format!("{err:#}").contains("ONNX Runtime library not found"),
+        "{err:#}"
+    );
+    // model-free components still work
+    assert!(build_detector("oracle", &cfg).is_ok());
+    assert!(build_segmenter("depth", &cfg).is_ok());
+    assert!(build_segmenter("box", &cfg).is_ok());
+}
