@@ -39,6 +39,14 @@ pub struct Config {
     pub detector: String,
     /// Segmenter used by the pipeline.
     pub segmenter: String,
+    /// Folder with the vendored models (default: ./models, or GROUNDER_MODEL_DIR).
+    pub model_dir: Option<PathBuf>,
+    /// Path of libonnxruntime (else ORT_DYLIB_PATH, else ./.ort/).
+    pub ort_dylib: Option<PathBuf>,
+    /// Folder whose prompt files override the built-in ones (GROUNDER_PROMPTS_DIR).
+    pub prompts_dir: Option<PathBuf>,
+    /// Method settings (`[agent]` table).
+    pub agent: crate::agent::AgentParams,
 }
 
 impl Default for Config {
@@ -54,11 +62,29 @@ impl Default for Config {
             pipeline: "vlm".into(),
             detector: "centernet".into(),
             segmenter: "depth".into(),
+            model_dir: None,
+            ort_dylib: None,
+            prompts_dir: None,
+            agent: crate::agent::AgentParams::default(),
         }
     }
 }
 
 impl Config {
+    /// Vision settings derived from this configuration.
+    pub fn vision(&self) -> crate::vision::VisionConfig {
+        let mut v = crate::vision::VisionConfig::from_env();
+        v.detector = self.detector.clone();
+        v.segmenter = self.segmenter.clone();
+        if let Some(d) = &self.model_dir {
+            v.model_dir = d.clone();
+        }
+        if self.ort_dylib.is_some() {
+            v.ort_dylib = self.ort_dylib.clone();
+        }
+        v
+    }
+
     /// Resolve the configuration from the command line, environment and file.
     pub fn load(args: &ServeArgs) -> anyhow::Result<Self> {
         let mut cfg = match &args.config {
@@ -96,6 +122,12 @@ impl Config {
         }
         if let Ok(v) = std::env::var("GROUNDER_SEGMENTER") {
             self.segmenter = v;
+        }
+        if let Ok(v) = std::env::var("GROUNDER_PROMPTS_DIR") {
+            self.prompts_dir = Some(PathBuf::from(v));
+        }
+        if let Ok(v) = std::env::var("GROUNDER_MODEL_DIR") {
+            self.model_dir = Some(PathBuf::from(v));
         }
         num("GROUNDER_WORKERS", &mut self.workers)?;
         num("GROUNDER_MAX_UPLOAD_BYTES", &mut self.max_upload_bytes)?;

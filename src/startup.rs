@@ -8,7 +8,11 @@ use crate::api::{self, AppState, Readiness};
 use crate::config::{Config, ServeArgs};
 use crate::jobs::{Grounder, JobSystem, WorkerConfig};
 use crate::metrics::Metrics;
+use crate::agent::VlmGrounder;
 use crate::store::Store;
+use crate::vision::Detector;
+use crate::vlm::prompts::Prompts;
+use crate::vlm::{VlmClient, VlmConfig};
 
 /// A built, not yet serving application.
 pub struct Application {
@@ -28,10 +32,12 @@ impl Application {
         let _ = std::fs::remove_dir_all(cfg.data_dir.join("tmp"));
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
-        let grounder = build_grounder(&cfg, &store, &mut readiness)?;
+        let detector = load_detector(&cfg, &mut readiness);
+        let grounder = build_grounder(&cfg, detector.clone(), &mut readiness)?;
         let jobs = JobSystem::new(store.clone(), grounder, metrics.clone(), WorkerConfig { workers: cfg.workers, data_dir: cfg.data_dir.clone() });
         let listener = TcpListener::bind(&cfg.addr).await.map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", cfg.addr))?;
-        let on_scene_stored = crate::jobs::indexing::hook(&cfg, store.clone(), jobs.clone(), &mut readiness);
+        let needs_instances = detector.as_ref().is_some_and(|d| d.needs_instances());
+        let on_scene_stored = crate::jobs::indexing::hook(cfg.detector.clone(), detector, store.clone(), jobs.clone());
         let state = AppState {
             cfg: Arc::new(cfg),
             store,
@@ -39,6 +45,7 @@ impl Application {
             metrics,
             readiness: Arc::new(std::sync::RwLock::new(readiness)),
             on_scene_stored,
+            detector_needs_instances: needs_instances,
         };
         crate::jobs::indexing::resume(&state.store, &state.on_scene_stored).await?;
         state.jobs.start();
@@ -59,11 +66,55 @@ impl Application {
     }
 }
 
-fn build_grounder(cfg: &Config, _store: &Store, _readiness: &mut Readiness) -> anyhow::Result<Arc<dyn Grounder>> {
+/// Load the configured detector once (shared by indexing and the pipeline).
+fn load_detector(cfg: &Config, readiness: &mut Readiness) -> Option<Arc<dyn Detector>> {
+    if cfg.detector == "none" {
+        return None;
+    }
+    match crate::vision::build_detector(&cfg.detector, &cfg.vision()) {
+        Ok(d) => Some(d),
+        Err(e) => {
+            let msg = format!("detector {:?} cannot be loaded: {e:#}", cfg.detector);
+            tracing::error!("{msg}");
+            readiness.problems.push(msg);
+            None
+        }
+    }
+}
+
+/// A pipeline that fails every job because a component could not be loaded.
+struct Unavailable(String);
+
+impl Grounder for Unavailable {
+    fn ground(&self, _ctx: crate::jobs::JobContext) -> futures::future::BoxFuture<'_, Result<crate::jobs::GroundingOutput, crate::jobs::JobFailure>> {
+        Box::pin(async move { Err(crate::jobs::JobFailure::new("pipeline_unavailable", self.0.clone())) })
+    }
+}
+
+fn build_grounder(cfg: &Config, detector: Option<Arc<dyn Detector>>, readiness: &mut Readiness) -> anyhow::Result<Arc<dyn Grounder>> {
     if cfg.pipeline.starts_with("test") {
         return Ok(Arc::new(crate::jobs::test_grounder::TestGrounder::from_spec(&cfg.pipeline)?));
     }
-    anyhow::bail!("unknown pipeline {:?} (known: test, test:delay_ms=N)", cfg.pipeline)
+    if cfg.pipeline != "vlm" {
+        anyhow::bail!("unknown pipeline {:?} (known: vlm, test, test:delay_ms=N)", cfg.pipeline);
+    }
+    match build_vlm_grounder(cfg, detector) {
+        Ok(g) => Ok(Arc::new(g)),
+        Err(e) => {
+            let msg = format!("the grounding pipeline cannot start: {e:#}");
+            tracing::error!("{msg}");
+            readiness.problems.push(msg.clone());
+            Ok(Arc::new(Unavailable(msg)))
+        }
+    }
+}
+
+fn build_vlm_grounder(cfg: &Config, detector: Option<Arc<dyn Detector>>) -> anyhow::Result<VlmGrounder> {
+    let detector = detector.ok_or_else(|| anyhow::anyhow!("no detector is loaded (GROUNDER_DETECTOR={:?})", cfg.detector))?;
+    let segmenter = crate::vision::build_segmenter(&cfg.segmenter, &cfg.vision())?;
+    let prompts = Prompts::load(cfg.prompts_dir.as_deref()).map_err(|e| anyhow::anyhow!("prompts: {e}"))?;
+    let client = VlmClient::new(VlmConfig::from_env()).map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
+    Ok(VlmGrounder::new(client, prompts, detector, cfg.detector.clone(), segmenter, cfg.agent.clone()))
 }
 
 /// `grounder serve`.

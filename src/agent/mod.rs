@@ -1,1 +1,144 @@
-//! agent
+//! The VLM-Grounder pipeline (paper Sec. 3), one file per stage:
+//! query analysis → view pre-selection → dynamic stitching → grounding with feedback
+//! (→ instance selection) → segmentation + multi-view ensemble projection.
+//! Every stage appends a step `{step, inputs, outputs, ms}` to the job's trace.
+
+pub mod grounding;
+pub mod instance;
+pub mod preselect;
+pub mod projection;
+pub mod query_analysis;
+pub mod stitching;
+pub mod vlm_log;
+
+use futures::future::BoxFuture;
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crate::geometry::GeometryParams;
+use crate::jobs::{Grounder, GroundingOutput, JobContext, JobFailure};
+use crate::stitch::annotate::AnnotateOptions;
+use crate::stitch::render::StitchOptions;
+use crate::vision::{Detector, Segmenter};
+use crate::vlm::json::QueryAnalysis;
+use crate::vlm::prompts::Prompts;
+use crate::vlm::{CallBudget, VlmClient, VlmError};
+
+/// Tunables of the method (defaults: REFERENCE-PARAMS.md).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AgentParams {
+    /// Soft image limit L of dynamic stitching.
+    pub image_limit: usize,
+    /// Feedback rounds M before a job fails.
+    pub max_retries: usize,
+    /// Score a cached detection needs to pre-select its frame.
+    pub preselect_score: f32,
+    /// Frames shown when pre-selection finds nothing (evenly sampled usable frames).
+    pub fallback_frames: usize,
+    /// VLM calls a job may make.
+    pub max_vlm_calls: u32,
+    /// Wall time a job may take, seconds.
+    pub max_job_seconds: u64,
+    pub stitch: StitchOptions,
+    pub annotate: AnnotateOptions,
+    pub geometry: GeometryParams,
+}
+
+impl Default for AgentParams {
+    fn default() -> Self {
+        Self {
+            image_limit: 6,
+            max_retries: 3,
+            preselect_score: 0.2,
+            fallback_frames: 48,
+            max_vlm_calls: 16,
+            max_job_seconds: 600,
+            stitch: StitchOptions::default(),
+            annotate: AnnotateOptions::default(),
+            geometry: GeometryParams::default(),
+        }
+    }
+}
+
+/// The pipeline the workers run.
+pub struct VlmGrounder {
+    pub client: VlmClient,
+    pub prompts: Prompts,
+    pub detector: Arc<dyn Detector>,
+    /// Name under which the scene indexer cached this detector's detections.
+    pub detector_key: String,
+    pub segmenter: Arc<dyn Segmenter>,
+    pub params: AgentParams,
+    analysis_cache: Mutex<HashMap<String, QueryAnalysis>>,
+}
+
+impl VlmGrounder {
+    pub fn new(client: VlmClient, prompts: Prompts, detector: Arc<dyn Detector>, detector_key: String, segmenter: Arc<dyn Segmenter>, params: AgentParams) -> Self {
+        Self { client, prompts, detector, detector_key, segmenter, params, analysis_cache: Mutex::new(HashMap::new()) }
+    }
+}
+
+/// Milliseconds since `t`.
+pub(crate) fn ms(t: Instant) -> f64 {
+    (t.elapsed().as_secs_f64() * 1e6).round() / 1e3
+}
+
+/// Append a step with inputs, outputs and its duration.
+pub(crate) async fn step(ctx: &JobContext, name: &str, inputs: Value, outputs: Value, started: Instant) {
+    ctx.trace.step(name, json!({"inputs": inputs, "outputs": outputs, "ms": ms(started)})).await;
+}
+
+/// Map a VLM client error to the job's failure.
+pub(crate) fn vlm_failure(e: VlmError) -> JobFailure {
+    match e {
+        VlmError::Cancelled => JobFailure::new("canceled", "canceled while waiting for the VLM"),
+        VlmError::CallBudgetExhausted { max_calls } => JobFailure::new("vlm_budget_exhausted", format!("the job used its budget of {max_calls} VLM calls")),
+        VlmError::DeadlineExceeded => JobFailure::new("job_timeout", "the job ran out of wall time"),
+        other => JobFailure::new("vlm_unavailable", other.to_string()),
+    }
+}
+
+impl Grounder for VlmGrounder {
+    fn ground(&self, ctx: JobContext) -> BoxFuture<'_, Result<GroundingOutput, JobFailure>> {
+        Box::pin(async move { self.run(ctx).await })
+    }
+}
+
+impl VlmGrounder {
+    async fn run(&self, ctx: JobContext) -> Result<GroundingOutput, JobFailure> {
+        let started = Instant::now();
+        let budget = CallBudget::with_cancel(self.params.max_vlm_calls, Some(Duration::from_secs(self.params.max_job_seconds)), ctx.cancel.clone());
+        let mut log = vlm_log::VlmLog::default();
+
+        let analysis = query_analysis::run(self, &ctx, &budget, &mut log).await?;
+        let pre = preselect::run(self, &ctx, &analysis).await?;
+        let grids = stitching::run(self, &ctx, &pre).await?;
+        let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
+        let projected = projection::run(self, &ctx, &pre, &choice).await?;
+
+        let total_ms = ms(started);
+        let usage = budget.total_usage();
+        let summary = json!({
+            "total_ms": total_ms,
+            "vlm_ms": log.vlm_ms,
+            "non_vlm_ms": (total_ms - log.vlm_ms).max(0.0),
+            "vlm_calls": budget.calls_used(),
+            "tokens": {"prompt": usage.prompt, "completion": usage.completion, "total": usage.total},
+            "feedback_rounds": choice.feedback_rounds,
+        });
+        ctx.trace.step("summary", json!({"outputs": summary.clone(), "ms": total_ms})).await;
+        let mut extra = serde_json::Map::new();
+        extra.insert("image_id".into(), json!(format!("{:05}", choice.frame_idx)));
+        extra.insert("frame".into(), json!(ctx.scene.frames[choice.frame_idx].name));
+        extra.insert("detection_box".into(), json!(choice.bbox));
+        extra.insert("target_class".into(), json!(analysis.target_class));
+        extra.insert("views_used".into(), json!(projected.views_used));
+        extra.insert("usage".into(), json!({"vlm_calls": budget.calls_used(), "total_tokens": usage.total, "prompt_tokens": usage.prompt, "completion_tokens": usage.completion}));
+        extra.insert("stats".into(), summary);
+        Ok(GroundingOutput { bbox: projected.bbox, extra })
+    }
+}

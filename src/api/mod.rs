@@ -38,6 +38,8 @@ pub struct AppState {
     pub readiness: Arc<std::sync::RwLock<Readiness>>,
     /// Hook run after a scene is stored (starts detector indexing); returns the initial status.
     pub on_scene_stored: Arc<dyn Fn(String) + Send + Sync>,
+    /// The detector reads ground-truth instance masks (oracle): scenes must carry them.
+    pub detector_needs_instances: bool,
 }
 
 /// All routes.

@@ -65,6 +65,10 @@ pub async fn upload(State(state): State<AppState>, headers: HeaderMap, body: Bod
         .await
         .map_err(|e| ApiError::internal(format!("import task failed: {e}")))??;
 
+    if state.detector_needs_instances && !scene.frames.iter().any(|f| f.instance_path.is_some()) {
+        let _ = std::fs::remove_dir_all(&scene_dir);
+        return Err(ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "instance_masks_required", format!("the configured detector {:?} reads ground-truth instance masks (instance/<frame>.png + instance/labels.json) and this scene has none", state.cfg.detector)));
+    }
     let detector = (state.cfg.detector != "none").then_some(state.cfg.detector.as_str());
     let status = if detector.is_some() && scene.frames.iter().any(|f| f.usable) { "indexing" } else { "ready" };
     let mut scene_guard = Cleanup(Some(scene_dir));

@@ -2,37 +2,34 @@
 //! the background and its detections are cached, so a query's view pre-selection is a
 //! lookup. The scene is `indexing` until done, then `ready` (jobs on it wait queued).
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
-use crate::api::Readiness;
-use crate::config::Config;
 use crate::jobs::JobSystem;
 use crate::scene::FrameData;
 use crate::store::Store;
-use crate::vision::Detection;
-
-/// Runs the detector on one frame.
-pub type DetectFn = Arc<dyn Fn(&FrameData) -> anyhow::Result<Vec<Detection>> + Send + Sync>;
-
-/// Build the detector used for indexing; problems are reported through readiness.
-pub fn build_detect_fn(cfg: &Config, readiness: &mut Readiness) -> Option<DetectFn> {
-    match crate::vision::index::detect_fn(&cfg.detector) {
-        Ok(f) => Some(f),
-        Err(e) => {
-            readiness.problems.push(format!("detector {:?} is not available: {e:#}", cfg.detector));
-            None
-        }
-    }
-}
+use crate::vision::{DetectInput, Detection, Detector};
 
 /// The hook the upload handler calls with a new scene id.
-pub fn hook(cfg: &Config, store: Store, jobs: JobSystem, readiness: &mut Readiness) -> Arc<dyn Fn(String) + Send + Sync> {
-    let detector_name = cfg.detector.clone();
-    let detect = if cfg.detector == "none" { None } else { build_detect_fn(cfg, readiness) };
+pub type IndexHook = Arc<dyn Fn(String) + Send + Sync>;
+
+/// Detect on one stored frame (decoding its JPEG; instance masks for the oracle).
+pub fn detect_frame(detector: &dyn Detector, frame: &FrameData, labels: Option<&HashMap<u32, String>>) -> anyhow::Result<Vec<Detection>> {
+    let img = image::open(&frame.color_path).map_err(|e| anyhow::anyhow!("frame {}: cannot decode colour: {e}", frame.name))?.to_rgb8();
+    let instances = match (&frame.instance_path, detector.needs_instances()) {
+        (Some(p), true) => Some(crate::agent::grounding::read_instance_mask(p)?),
+        (None, true) => anyhow::bail!("the {} detector needs instance masks and frame {} has none", detector.name(), frame.name),
+        _ => None,
+    };
+    detector.detect(&DetectInput { color: &img, instances: instances.as_ref(), labels, frame_key: frame.idx as u64 })
+}
+
+/// Build the hook; `detector` is None when it could not be loaded (readiness says why).
+pub fn hook(detector_key: String, detector: Option<Arc<dyn Detector>>, store: Store, jobs: JobSystem) -> IndexHook {
     Arc::new(move |scene_id: String| {
-        let (store, jobs, detect, name) = (store.clone(), jobs.clone(), detect.clone(), detector_name.clone());
+        let (store, jobs, detector, key) = (store.clone(), jobs.clone(), detector.clone(), detector_key.clone());
         tokio::spawn(async move {
-            let outcome = index_scene(&store, &jobs, &scene_id, &name, detect).await;
+            let outcome = index_scene(&store, &jobs, &scene_id, &key, detector).await;
             let (status, err) = match outcome {
                 Ok(()) => ("ready", None),
                 Err(e) => ("failed", Some(format!("{e:#}"))),
@@ -46,27 +43,25 @@ pub fn hook(cfg: &Config, store: Store, jobs: JobSystem, readiness: &mut Readine
 }
 
 /// Restart indexing of scenes a previous process left half-indexed.
-pub async fn resume(store: &Store, hook: &Arc<dyn Fn(String) + Send + Sync>) -> anyhow::Result<()> {
+pub async fn resume(store: &Store, hook: &IndexHook) -> anyhow::Result<()> {
     for id in store.scenes_with_status("indexing").await? {
         hook(id);
     }
     Ok(())
 }
 
-async fn index_scene(store: &Store, jobs: &JobSystem, scene_id: &str, detector: &str, detect: Option<DetectFn>) -> anyhow::Result<()> {
-    let Some(detect) = detect else {
-        anyhow::bail!("detector {detector:?} could not be loaded (see /readyz)");
+async fn index_scene(store: &Store, jobs: &JobSystem, scene_id: &str, key: &str, detector: Option<Arc<dyn Detector>>) -> anyhow::Result<()> {
+    let Some(detector) = detector else {
+        anyhow::bail!("detector {key:?} could not be loaded (see /readyz)");
     };
-    let scene = store
-        .load_scene(scene_id, &jobs.scene_dir(scene_id))
-        .await?
-        .ok_or_else(|| anyhow::anyhow!("scene {scene_id} vanished"))?;
+    let scene = store.load_scene(scene_id, &jobs.scene_dir(scene_id)).await?.ok_or_else(|| anyhow::anyhow!("scene {scene_id} vanished"))?;
+    let labels: Option<HashMap<u32, String>> = scene.instance_labels.clone().map(|l| l.into_iter().collect());
     let usable: Vec<FrameData> = scene.frames.iter().filter(|f| f.usable).cloned().collect();
-    store.reset_index(scene_id, detector, usable.len()).await?;
+    store.reset_index(scene_id, key, usable.len()).await?;
     for frame in usable {
-        let d = detect.clone();
-        let dets = tokio::task::spawn_blocking(move || d(&frame).map(|x| (frame.idx, x))).await??;
-        store.put_detections(scene_id, detector, dets.0, &dets.1).await?;
+        let (d, l) = (detector.clone(), labels.clone());
+        let (idx, dets) = tokio::task::spawn_blocking(move || detect_frame(d.as_ref(), &frame, l.as_ref()).map(|x| (frame.idx, x))).await??;
+        store.put_detections(scene_id, key, idx, &dets).await?;
     }
     Ok(())
 }

@@ -1,0 +1,70 @@
+//! Stage 4b: instance selection. With several candidates in the chosen frame, the VLM sees
+//! the frame with "ID:n" labels at the box centres and answers an object id; an invalid id
+//! gets feedback within the same retry budget.
+
+use image::RgbImage;
+use serde_json::{json, Value};
+use std::time::Instant;
+
+use super::grounding::Conversation;
+use super::{step, VlmGrounder};
+use crate::jobs::{JobContext, JobFailure};
+use crate::stitch::annotate::annotate_instances;
+use crate::stitch::render::encode_jpeg;
+use crate::vision::Detection;
+use crate::vlm::json::{parse_instance, QueryAnalysis};
+use crate::vlm::prompts::{InstanceInput, ReplyKind};
+use crate::vlm::{CallBudget, ImageData, Message};
+
+#[allow(clippy::too_many_arguments)]
+pub async fn select(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, conv: &mut Conversation<'_>, analysis: &QueryAnalysis, idx: usize, image: &RgbImage, dets: &[Detection]) -> Result<[f32; 4], JobFailure> {
+    let t = Instant::now();
+    let boxes: Vec<(String, [f32; 4])> = dets.iter().enumerate().map(|(i, d)| (i.to_string(), d.bbox)).collect();
+    let opts = g.params.annotate.clone();
+    let img = image.clone();
+    let quality = g.params.stitch.jpeg_quality;
+    let jpeg = tokio::task::spawn_blocking(move || annotate_instances(&img, &boxes, &opts).and_then(|a| encode_jpeg(&a, quality)))
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("annotation task failed: {e}")))?
+        .map_err(|e| JobFailure::new("annotation_failed", format!("{e:#}")))?;
+    let url = ctx.trace.artifact(&format!("instances_{idx:05}_{}.jpg", conv.rounds), jpeg.clone()).await?;
+    let candidates: Vec<[f32; 4]> = dets.iter().map(|d| d.bbox).collect();
+    let text = g.prompts.instance_selection(&InstanceInput {
+        query: &ctx.query,
+        target_class: &analysis.target_class,
+        image_id: idx as u32,
+        width: image.width(),
+        height: image.height(),
+        candidates: &candidates,
+    });
+    conv.messages.push(Message::user_with_images(text, vec![ImageData::jpeg(jpeg)]));
+    conv.image_urls.push(url.clone());
+    let mut exchanges: Vec<Value> = Vec::new();
+    loop {
+        let (reply, mut rec) = conv.ask(g, budget).await?;
+        let (fb, why) = match parse_instance(&reply) {
+            Ok(a) if (a.object_id as usize) < dets.len() => {
+                exchanges.push(rec);
+                let i = a.object_id as usize;
+                step(
+                    ctx,
+                    "instance_selection",
+                    json!({"candidates": dets.len(), "annotated": url}),
+                    json!({"index": i, "box": dets[i].bbox, "asked_vlm": true, "reasoning": a.reasoning, "vlm": exchanges}),
+                    t,
+                )
+                .await;
+                return Ok(dets[i].bbox);
+            }
+            Ok(a) => (g.prompts.feedback_object_id_invalid(&a.object_id_text, dets.len()), format!("object id {:?} is not a candidate", a.object_id_text)),
+            Err(e) => (g.prompts.feedback_unparsable(ReplyKind::Instance), format!("unparsable reply: {e}")),
+        };
+        rec["invalid"] = json!(why);
+        rec["feedback"] = json!(fb);
+        exchanges.push(rec);
+        if let Err(e) = conv.feedback(g, fb, &why) {
+            step(ctx, "instance_selection", json!({"candidates": dets.len(), "annotated": url}), json!({"failed": true, "vlm": exchanges}), t).await;
+            return Err(e);
+        }
+    }
+}

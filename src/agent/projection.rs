@@ -1,0 +1,171 @@
+//! Stage 5: segmentation and multi-view ensemble projection (paper Sec. 3.4). The chosen
+//! box is segmented, the mask back-projected; other views that see those points are found
+//! by reprojection (our replacement for image matching), a box is segmented in each (the
+//! cached detection of the class that best overlaps the reprojected footprint, else the
+//! footprint's own box), and the views that agree (chamfer filter) are fused.
+
+use image::RgbImage;
+use nalgebra::Point3;
+use serde_json::json;
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::grounding::Choice;
+use super::preselect::Preselection;
+use super::{ms, step, VlmGrounder};
+use crate::geometry::ensemble::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame};
+use crate::geometry::{Aabb, GeometryParams, Mask};
+use crate::jobs::{JobContext, JobFailure};
+use crate::scene::FrameData;
+use crate::vision::{SegmentInput, Segmenter};
+
+/// The 3D answer.
+pub struct Projected {
+    pub bbox: Aabb,
+    pub views_used: usize,
+}
+
+/// Row-major run lengths, the first run being background (for traces).
+pub fn mask_rle(m: &Mask) -> Vec<u32> {
+    let mut runs = Vec::new();
+    let mut cur = false;
+    let mut n = 0u32;
+    for &b in &m.data {
+        if b != cur {
+            runs.push(n);
+            n = 0;
+            cur = b;
+        }
+        n += 1;
+    }
+    runs.push(n);
+    runs
+}
+
+/// 2D IoU of two boxes.
+pub fn box_iou(a: [f32; 4], b: [f32; 4]) -> f32 {
+    let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
+    let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let inter = iw * ih;
+    let area = |r: [f32; 4]| (r[2] - r[0]).max(0.0) * (r[3] - r[1]).max(0.0);
+    let u = area(a) + area(b) - inter;
+    if u <= 0.0 { 0.0 } else { inter / u }
+}
+
+fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox: [f32; 4], params: &GeometryParams) -> anyhow::Result<(Mask, Vec<Point3<f64>>)> {
+    let mask = seg.segment(&SegmentInput { color: image, depth: &frame.depth, camera: &frame.camera }, bbox)?;
+    let pts = mask_points(&mask, &frame.camera, &frame.depth, params).map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok((mask, pts))
+}
+
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: &Choice) -> Result<Projected, JobFailure> {
+    let t = Instant::now();
+    let scene = ctx.scene.clone();
+    let anchor = scene.frames[choice.frame_idx].clone();
+    let (seg, params, image, bbox) = (g.segmenter.clone(), g.params.geometry.clone(), choice.image.clone(), choice.bbox);
+    let (mask, anchor_pts) = tokio::task::spawn_blocking(move || segment_points(seg.as_ref(), &anchor, &image, bbox, &params))
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
+        .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
+    step(
+        ctx,
+        "segmentation",
+        json!({"image_id": format!("{:05}", choice.frame_idx), "box": choice.bbox, "segmenter": g.segmenter.name()}),
+        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": mask.width, "height": mask.height, "rle": mask_rle(&mask)}, "pixels": mask.count(), "points": anchor_pts.len()}),
+        t,
+    )
+    .await;
+    if anchor_pts.is_empty() {
+        return Err(JobFailure::new("empty_mask", "the mask has no pixel with a depth reading after clean-up"));
+    }
+
+    let tp = Instant::now();
+    // Views that see the anchor points.
+    let others: Vec<usize> = scene.usable_frames().map(|f| f.idx).filter(|&i| i != choice.frame_idx).collect();
+    let params = g.params.geometry.clone();
+    let (sc, ap) = (scene.clone(), anchor_pts.clone());
+    let views = tokio::task::spawn_blocking(move || {
+        let cands: Vec<CandidateFrame> = others.iter().map(|&i| CandidateFrame { index: i, camera: &sc.frames[i].camera, depth: &sc.frames[i].depth }).collect();
+        find_views(&ap, &cands, &params)
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("view search failed: {e}")))?;
+    let find_ms = ms(tp);
+
+    // A box in each view: the cached detection of the class that best overlaps the footprint.
+    let dets = match &pre.detector_class {
+        Some(_) => ctx.store.detections(&scene.id, &g.detector_key).await.map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
+        None => Default::default(),
+    };
+    let mut view_boxes = Vec::with_capacity(views.len());
+    for v in &views {
+        let best = pre.detector_class.as_ref().and_then(|c| {
+            dets.get(&v.index)?
+                .iter()
+                .filter(|d| &d.label == c && d.score > g.params.preselect_score)
+                .map(|d| (box_iou(d.bbox, v.bbox), d.bbox))
+                .filter(|(iou, _)| *iou >= 0.3)
+                .max_by(|a, b| a.0.total_cmp(&b.0))
+        });
+        view_boxes.push((v.index, best.map(|b| b.1).unwrap_or(v.bbox), best.is_some()));
+    }
+    let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
+    let decoded = super::stitching::decode(&scene, &idxs).await?;
+    let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
+    let (fusion, single) = tokio::task::spawn_blocking(move || {
+        use rayon::prelude::*;
+        let other_pts: Vec<(usize, Vec<Point3<f64>>)> = vb
+            .par_iter()
+            .filter_map(|(i, b, _)| {
+                let img: &Arc<RgbImage> = decoded.get(i)?;
+                segment_points(seg.as_ref(), &sc.frames[*i], img, *b, &params).ok().map(|(_, p)| (*i, p))
+            })
+            .filter(|(_, p)| !p.is_empty())
+            .collect();
+        (fuse_views(&anchor_pts, &other_pts, &params), single_view_box(&anchor_pts, &params))
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
+    let bbox = fusion.aabb.ok_or_else(|| JobFailure::new("projection_failed", "no points survived outlier removal"))?;
+    let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
+    let view_json: Vec<_> = views
+        .iter()
+        .zip(&view_boxes)
+        .map(|(v, (_, b, from_det))| {
+            let d = fusion.views.iter().find(|d| d.index == v.index);
+            json!({"image_id": format!("{:05}", v.index), "visible_fraction": v.visible_fraction, "footprint": v.bbox, "box": b, "box_from_detection": from_det,
+                   "chamfer": d.and_then(|d| d.chamfer), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points)})
+        })
+        .collect();
+    step(
+        ctx,
+        "projection",
+        json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
+        json!({"box": bbox, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms}),
+        tp,
+    )
+    .await;
+    Ok(Projected { bbox, views_used })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rle_starts_with_background() {
+        let mut m = Mask::new(4, 1);
+        m.set(0, 0, true);
+        m.set(1, 0, true);
+        assert_eq!(mask_rle(&m), vec![0, 2, 2]);
+        let mut m = Mask::new(3, 1);
+        m.set(2, 0, true);
+        assert_eq!(mask_rle(&m), vec![2, 1]);
+    }
+
+    #[test]
+    fn box_iou_basics() {
+        assert!((box_iou([0.0, 0.0, 2.0, 2.0], [1.0, 0.0, 3.0, 2.0]) - 1.0 / 3.0).abs() < 1e-6);
+        assert_eq!(box_iou([0.0, 0.0, 1.0, 1.0], [2.0, 2.0, 3.0, 3.0]), 0.0);
+    }
+}

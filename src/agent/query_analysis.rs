@@ -1,0 +1,65 @@
+//! Stage 1: query analysis — the VLM names the target class, its attributes and the
+//! conditions relating it to other objects. Cached by normalised query text.
+
+use serde_json::json;
+use std::time::Instant;
+
+use super::vlm_log::VlmLog;
+use super::{step, vlm_failure, VlmGrounder};
+use crate::jobs::{JobContext, JobFailure};
+use crate::vlm::json::{parse_query_analysis, QueryAnalysis};
+use crate::vlm::prompts::ReplyKind;
+use crate::vlm::{CallBudget, Message};
+
+/// Lower case with runs of white space folded: the cache key.
+pub fn normalise(query: &str) -> String {
+    query.split_whitespace().collect::<Vec<_>>().join(" ").to_lowercase()
+}
+
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &mut VlmLog) -> Result<QueryAnalysis, JobFailure> {
+    let t = Instant::now();
+    let key = normalise(&ctx.query);
+    let cached = g.analysis_cache.lock().ok().and_then(|c| c.get(&key).cloned());
+    if let Some(a) = cached {
+        step(ctx, "query_analysis", json!({"query": ctx.query}), json!({"analysis": a, "cached": true}), t).await;
+        return Ok(a);
+    }
+    let mut messages = vec![Message::user(g.prompts.query_analysis(&ctx.query))];
+    let mut exchanges = Vec::new();
+    for round in 0..=g.params.max_retries {
+        let sent = VlmLog::messages_json(&messages[messages.len() - 1..], &[]);
+        let reply = g.client.chat(&messages, budget).await.map_err(vlm_failure)?;
+        let rec = log.reply(&reply);
+        match parse_query_analysis(&reply.text) {
+            Ok(mut a) if !a.target_class.trim().is_empty() => {
+                a.target_class = a.target_class.trim().to_lowercase();
+                exchanges.push(json!({"sent": sent, "reply": rec}));
+                if let Ok(mut c) = g.analysis_cache.lock() {
+                    c.insert(key, a.clone());
+                }
+                step(ctx, "query_analysis", json!({"query": ctx.query}), json!({"analysis": a, "cached": false, "vlm": exchanges}), t).await;
+                return Ok(a);
+            }
+            outcome => {
+                let why = match outcome {
+                    Err(e) => e.to_string(),
+                    Ok(_) => "empty target_class".to_string(),
+                };
+                let feedback = g.prompts.feedback_unparsable(ReplyKind::QueryAnalysis);
+                exchanges.push(json!({"sent": sent, "reply": rec, "invalid": why, "feedback": feedback, "round": round}));
+                messages.push(Message::assistant(reply.text));
+                messages.push(Message::user(feedback));
+            }
+        }
+    }
+    step(ctx, "query_analysis", json!({"query": ctx.query}), json!({"vlm": exchanges, "failed": true}), t).await;
+    Err(JobFailure::new("query_analysis_failed", format!("the VLM gave no usable query analysis in {} tries", g.params.max_retries + 1)))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn normalises_case_and_spaces() {
+        assert_eq!(super::normalise("  The  Red\tChair "), "the red chair");
+    }
+}
