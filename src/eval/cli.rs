@@ -1,7 +1,6 @@
 //! `grounder oracle-vlm`, `grounder eval`, `grounder convert`.
 
-#[derive(Debug, clap::Args)]
-pub struct OracleVlmArgs {}
+pub use super::oracle_vlm::OracleVlmArgs;
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {}
@@ -9,8 +8,8 @@ pub struct EvalArgs {}
 #[derive(Debug, clap::Args)]
 pub struct ConvertArgs {}
 
-pub async fn run_oracle_vlm(_args: OracleVlmArgs) -> anyhow::Result<()> {
-    anyhow::bail!("grounder oracle-vlm is not built yet")
+pub async fn run_oracle_vlm(args: OracleVlmArgs) -> anyhow::Result<()> {
+    super::oracle_vlm::run(args).await
 }
 
 pub async fn run_eval(_args: EvalArgs) -> anyhow::Result<()> {
