@@ -272,3 +272,56 @@ async fn openai_shapes_for_models_and_errors() {
     let r = http.get(format!("{base}/nope")).send().await.unwrap();
     assert_eq!(r.status(), 404);
 }
+
+#[test]
+fn cli_flags_as_specified() {
+    use clap::Parser;
+    use grounder::cli::{Cli, Command};
+    let cli = Cli::try_parse_from([
+        "grounder",
+        "oracle-vlm",
+        "--addr",
+        "127.0.0.1:9000",
+        "--dataset",
+        "d",
+        "--scenes",
+        "s",
+        "--seed",
+        "3",
+        "--error-rate",
+        "0.25",
+    ])
+    .unwrap();
+    match cli.command {
+        Command::OracleVlm(a) => {
+            assert_eq!(
+                (a.addr.as_str(), a.seed, a.error_rate),
+                ("127.0.0.1:9000", 3, 0.25)
+            );
+            assert_eq!(
+                (a.dataset.to_str(), a.scenes.to_str()),
+                (Some("d"), Some("s"))
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        Cli::try_parse_from(["grounder", "oracle-vlm", "--dataset", "d", "--scenes", "s"]).is_err()
+    );
+}
+
+#[tokio::test]
+async fn unparsable_feedback_gets_the_same_question_again() {
+    let f = start(0.0, 1, false).await;
+    let mut conv = grounding_msgs(&f.prompts, &[0, 1, 2], [200, 40, 40]);
+    conv.push(Message::assistant("I think it is the second image."));
+    conv.push(Message::user(f.prompts.feedback_unparsable(
+        grounder::vlm::prompts::ReplyKind::Grounding,
+    )));
+    let r = f
+        .client
+        .chat(&conv, &CallBudget::unlimited())
+        .await
+        .unwrap();
+    assert_eq!(parse_grounding(&r.text).unwrap().target_image_id, 1);
+}

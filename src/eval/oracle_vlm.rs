@@ -118,9 +118,15 @@ async fn models() -> Json<Value> {
 }
 
 /// Messages of a request body, images decoded from data URLs.
-fn read_messages(body: &Value) -> Result<Vec<SeenMessage>, Response> {
-    let bad =
-        |m: &str, p: &str| api_error(StatusCode::BAD_REQUEST, "invalid_request_error", m, Some(p));
+fn read_messages(body: &Value) -> Result<Vec<SeenMessage>, Box<Response>> {
+    let bad = |m: &str, p: &str| {
+        Box::new(api_error(
+            StatusCode::BAD_REQUEST,
+            "invalid_request_error",
+            m,
+            Some(p),
+        ))
+    };
     let msgs = body
         .get("messages")
         .and_then(Value::as_array)
@@ -223,7 +229,7 @@ async fn chat(State(st): State<Arc<OracleState>>, body: Bytes) -> Response {
         .to_string();
     let messages = match read_messages(&body) {
         Ok(m) => m,
-        Err(r) => return r,
+        Err(r) => return *r,
     };
     let prompt_tokens: u64 = messages
         .iter()
