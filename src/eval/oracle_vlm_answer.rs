@@ -117,14 +117,22 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
         frame: None,
         frame_size: None,
         candidates: Vec::new(),
-        images: task.images.clone(),
+        // Images of the task message; if the agent sent them in separate messages, all
+        // images from the task message on.
+        images: if task.images.is_empty() {
+            users[pos..]
+                .iter()
+                .flat_map(|m| m.images.iter().cloned())
+                .collect()
+        } else {
+            task.images.clone()
+        },
     };
     if mode == Mode::Instance {
         let t = &task.text;
         conv.frame = t.find("frame ").and_then(|i| {
-            five_digit_ids(&t[i + 6..(i + 11).min(t.len())])
-                .first()
-                .copied()
+            let head: String = t[i + 6..].chars().take(5).collect();
+            five_digit_ids(&head).first().copied()
         });
         conv.frame_size = t.find(" pixels").and_then(|end| {
             let head = &t[..end];
@@ -305,7 +313,8 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
     let resolved = resolve(truth, conv);
     let fail = error_rate > 0.0 && rng.gen_bool(error_rate.clamp(0.0, 1.0));
     let kind = if fail { rng.gen_range(0..3u8) } else { u8::MAX };
-    if kind == 2 {
+    // Query analysis has no id to get wrong: its fallible answer is malformed JSON.
+    if kind == 2 || (fail && conv.mode == Mode::Analysis) {
         return "{\"reasoning\": \"I believe the object is in".to_string();
     }
     match conv.mode {
