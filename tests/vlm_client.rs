@@ -356,3 +356,38 @@ fn env_overrides_and_azure_urls() {
     assert_eq!((cfg.api_key.expose(), cfg.model.as_str()), ("k1", "qwen"));
     assert!(cfg.chat_url().ends_with("/v1/chat/completions"));
 }
+
+#[tokio::test]
+async fn large_images_are_downscaled_and_image_count_is_capped() {
+    use base64::Engine;
+    let (script, base) = fake(vec![Step::Ok("ok")]).await;
+    let mut cfg = config(&base);
+    cfg.max_image_side = 32;
+    cfg.max_images_per_request = 2;
+    let client = VlmClient::new(cfg).unwrap();
+    let mut jpeg = Vec::new();
+    let img = image::RgbImage::from_pixel(128, 32, image::Rgb([10, 200, 10]));
+    image::codecs::jpeg::JpegEncoder::new(&mut jpeg)
+        .encode_image(&img)
+        .unwrap();
+    let m = Message::user_with_images("look", vec![ImageData::jpeg(jpeg.clone())]);
+    client.chat(&[m], &CallBudget::unlimited()).await.unwrap();
+    let url = script.seen.lock().unwrap()[0].1["messages"][0]["content"][1]["image_url"]["url"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let bytes = base64::engine::general_purpose::STANDARD
+        .decode(url.split_once(',').unwrap().1)
+        .unwrap();
+    let sent = image::load_from_memory(&bytes).unwrap();
+    assert_eq!((sent.width(), sent.height()), (32, 8));
+
+    let three = Message::user_with_images("x", vec![ImageData::jpeg(jpeg.clone()); 3]);
+    let budget = CallBudget::unlimited();
+    let err = client.chat(&[three], &budget).await.unwrap_err();
+    assert!(
+        matches!(err, VlmError::TooManyImages { count: 3, max: 2 }),
+        "{err:?}"
+    );
+    assert_eq!(budget.calls_used(), 0);
+}

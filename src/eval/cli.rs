@@ -2,8 +2,7 @@
 
 use std::path::PathBuf;
 
-#[derive(Debug, clap::Args)]
-pub struct OracleVlmArgs {}
+pub use super::oracle_vlm::OracleVlmArgs;
 
 /// `grounder eval`: run every query of an annotated dataset and write a report.
 #[derive(Debug, clap::Args)]
@@ -48,8 +47,8 @@ pub struct ConvertArgs {
     pub format: crate::eval::convert::ConvertCommand,
 }
 
-pub async fn run_oracle_vlm(_args: OracleVlmArgs) -> anyhow::Result<()> {
-    anyhow::bail!("grounder oracle-vlm is not built yet")
+pub async fn run_oracle_vlm(args: OracleVlmArgs) -> anyhow::Result<()> {
+    super::oracle_vlm::run(args).await
 }
 
 /// Run `grounder eval` and print the headline numbers.

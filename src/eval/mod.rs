@@ -20,3 +20,6 @@ pub mod plot;
 pub mod report;
 pub mod runner;
 pub mod trace;
+pub mod oracle_vlm;
+pub mod oracle_vlm_answer;
+pub mod oracle_vlm_truth;
