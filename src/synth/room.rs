@@ -263,7 +263,13 @@ impl Builder {
                 .any(|o| overlaps(o, b, 0.03))
     }
 
-    fn add(&mut self, label: &str, colour: &str, parts: Vec<Aabb>) -> usize {
+    fn add(&mut self, label: &str, colour: &str, mut parts: Vec<Aabb>) -> usize {
+        // Micrometre coordinates: short decimals that survive a JSON round trip exactly.
+        let um = |x: f64| (x * 1e6).round() / 1e6;
+        for p in parts.iter_mut() {
+            p.min = p.min.map(um);
+            p.max = p.max.map(um);
+        }
         let aabb = union(&parts);
         let mut rgb = palette(colour);
         for c in rgb.iter_mut() {
