@@ -10,6 +10,7 @@
 //! Library first: [`generate`] writes one scene and returns its ground truth;
 //! [`write_dataset`] writes FORMATS §2 annotations for a set of scenes.
 
+mod catalog;
 pub mod cli;
 mod noise;
 mod output;
