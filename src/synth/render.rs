@@ -340,9 +340,9 @@ fn slab(lo: f64, hi: f64, o: f64, inv: f64) -> (f64, f64) {
     }
 }
 
-/// Deterministic hash of an integer lattice point to [0, 1).
+/// Deterministic 64-bit hash of an integer lattice point (splitmix64 finaliser).
 #[inline]
-pub(crate) fn hash(x: i64, y: i64, z: i64, seed: u64) -> f64 {
+pub(crate) fn hash_u64(x: i64, y: i64, z: i64, seed: u64) -> u64 {
     let mut h = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
         ^ (x as u64).wrapping_mul(0xBF58_476D_1CE4_E5B9)
         ^ (y as u64).wrapping_mul(0x94D0_49BB_1331_11EB)
@@ -351,8 +351,13 @@ pub(crate) fn hash(x: i64, y: i64, z: i64, seed: u64) -> f64 {
     h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
     h ^= h >> 27;
     h = h.wrapping_mul(0x94D0_49BB_1331_11EB);
-    h ^= h >> 31;
-    (h >> 11) as f64 / (1u64 << 53) as f64
+    h ^ (h >> 31)
+}
+
+/// Deterministic hash of an integer lattice point to [0, 1).
+#[inline]
+pub(crate) fn hash(x: i64, y: i64, z: i64, seed: u64) -> f64 {
+    (hash_u64(x, y, z, seed) >> 11) as f64 / (1u64 << 53) as f64
 }
 
 /// The two in-plane coordinates of a point on a face perpendicular to `axis`.
