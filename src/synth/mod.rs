@@ -1,3 +1,274 @@
 //! Synthetic posed RGB-D scenes with exact ground truth (`grounder synth`).
+//!
+//! A room (floor, walls, ceiling) holds 8–20 pieces of furniture, each made of a few
+//! axis-aligned boxes in the room's *aligned* frame. A camera walks a loop at head height;
+//! every frame is ray-cast into a colour image, a depth image (u16 millimetres) and an
+//! instance mask. Poses are written in an unaligned world frame together with
+//! `axis_align_matrix.txt` (world -> aligned), so ground-truth boxes are axis-aligned in the
+//! output frame of FORMATS.md §1 exactly as for ScanNet.
+//!
+//! Library first: [`generate`] writes one scene and returns its ground truth;
+//! [`write_dataset`] writes FORMATS §2 annotations for a set of scenes.
 
+mod catalog;
 pub mod cli;
+mod noise;
+mod output;
+mod path;
+pub mod preview;
+mod queries;
+mod render;
+mod room;
+
+use crate::geometry::{Aabb, Intrinsics};
+use anyhow::{Context, Result};
+use nalgebra::Matrix4;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+pub use queries::write_dataset;
+
+/// Sensor imperfections added to the rendered data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+pub enum Noise {
+    /// Exact depth, exact poses.
+    None,
+    /// Distance-dependent depth noise, flying pixels, holes, a depth cut-off, pose jitter,
+    /// a few frames with inf poses and colour sensor noise.
+    Realistic,
+}
+
+/// On-disk layout of the scene directory (FORMATS §1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+pub enum Layout {
+    /// §1a: `color/`, `depth/`, `pose/`, `intrinsic/` sub-folders (ScanNet SensReader).
+    Scannet,
+    /// §1b: one folder of `<frame>.jpg/.png/.txt` plus `intrinsic.txt`.
+    PosedImages,
+}
+
+/// Everything that determines a synthetic scene. Same parameters → same bytes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SynthParams {
+    /// Seed of every random choice (room, objects, path, noise).
+    pub seed: u64,
+    /// Number of frames rendered.
+    pub frames: usize,
+    /// Sensor imperfections.
+    pub noise: Noise,
+    /// Colour image size (width, height); instance masks use this size too.
+    pub color_size: (u32, u32),
+    /// Depth image size (width, height).
+    pub depth_size: (u32, u32),
+    /// Directory layout.
+    pub layout: Layout,
+    /// Frame names are `i * frame_step` (ScanNet's every-20th sampling: 0, 20, 40, ...).
+    pub frame_step: u32,
+    /// JPEG quality of the colour images.
+    pub jpeg_quality: u8,
+}
+
+impl SynthParams {
+    /// ScanNet-sized scene: 60 frames, colour 1296x968, depth 640x480, no noise.
+    pub fn new(seed: u64) -> Self {
+        Self {
+            seed,
+            frames: 60,
+            noise: Noise::None,
+            color_size: (1296, 968),
+            depth_size: (640, 480),
+            layout: Layout::Scannet,
+            frame_step: 20,
+            jpeg_quality: 90,
+        }
+    }
+
+    /// Small scene for tests: 8 frames, colour 320x240, depth 160x120, no noise.
+    pub fn small(seed: u64) -> Self {
+        Self {
+            frames: 8,
+            color_size: (320, 240),
+            depth_size: (160, 120),
+            ..Self::new(seed)
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        let (cw, ch) = self.color_size;
+        let (dw, dh) = self.depth_size;
+        anyhow::ensure!(self.frames >= 1, "synth: at least one frame is needed");
+        anyhow::ensure!(
+            cw >= 8 && ch >= 8 && dw >= 8 && dh >= 8,
+            "synth: image sizes must be at least 8x8"
+        );
+        anyhow::ensure!(
+            cw <= 8192 && ch <= 8192 && dw <= 8192 && dh <= 8192,
+            "synth: image sizes above 8192 are not supported"
+        );
+        anyhow::ensure!(self.frame_step >= 1, "synth: frame_step must be at least 1");
+        Ok(())
+    }
+}
+
+/// One ground-truth object. Boxes are in the OUTPUT frame (after `axis_align_matrix`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SynthObject {
+    /// Instance id (equals the ids in `instance/*.png` and `objects/<scene>.json`).
+    pub id: u32,
+    /// Category, e.g. "chair".
+    pub label: String,
+    /// Colour name, e.g. "red".
+    pub color: String,
+    /// Tight axis-aligned box of the object's geometry.
+    pub aabb: Aabb,
+    /// The boxes the object is built from (their union's bounds are `aabb`).
+    #[serde(skip)]
+    pub parts: Vec<Aabb>,
+    /// Linear RGB albedo used by the renderer.
+    #[serde(skip)]
+    pub rgb: [f64; 3],
+}
+
+/// One templated query whose target is unique by construction.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SynthQuery {
+    pub scene_id: String,
+    pub query_id: String,
+    pub text: String,
+    pub target_id: u32,
+    pub target_label: String,
+    /// "unique" or "multiple" (ScanRefer's definition, FORMATS §2).
+    pub subset: String,
+    /// Template family: "attribute", "relation", "support" or "extreme".
+    pub kind: String,
+}
+
+/// One rendered frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SynthFrame {
+    /// Decimal frame name (file stem).
+    pub name: String,
+    /// True camera-to-world pose in the OUTPUT (aligned) frame (used for rendering).
+    pub pose_aligned: Matrix4<f64>,
+    /// False when the pose file holds inf (unusable frame, FORMATS §1).
+    pub pose_valid: bool,
+}
+
+/// A generated scene: where it was written and its exact ground truth.
+#[derive(Debug, Clone)]
+pub struct SynthScene {
+    /// e.g. `scene_synth_0007`.
+    pub scene_id: String,
+    /// The scene directory (`<out_dir>/<scene_id>`).
+    pub dir: PathBuf,
+    /// The tar archive of the scene directory, when requested.
+    pub tar: Option<PathBuf>,
+    /// Room extent in the output frame: x in [0, size.0], y in [0, size.1], z in [0, size.2].
+    pub room_size: (f64, f64, f64),
+    pub objects: Vec<SynthObject>,
+    pub queries: Vec<SynthQuery>,
+    pub frames: Vec<SynthFrame>,
+    /// World -> output frame, as written to `axis_align_matrix.txt`.
+    pub axis_align: Matrix4<f64>,
+    pub color_intrinsics: Intrinsics,
+    pub depth_intrinsics: Intrinsics,
+    pub params: SynthParams,
+}
+
+/// Scene id for a seed: `scene_synth_0007`.
+pub fn scene_id(seed: u64) -> String {
+    format!("scene_synth_{seed:04}")
+}
+
+/// Colour intrinsics of a synthetic camera (ScanNet-like field of view, square pixels).
+pub fn color_intrinsics(width: u32, height: u32) -> Intrinsics {
+    let f = 0.903 * width as f64; // 1170 px at 1296 wide, as ScanNet's colour camera
+    Intrinsics {
+        fx: f,
+        fy: f,
+        cx: (width as f64 - 1.0) / 2.0,
+        cy: (height as f64 - 1.0) / 2.0,
+        width,
+        height,
+    }
+}
+
+/// Build, render and write one scene into `<out_dir>/<scene_id>/`.
+///
+/// Frames are rendered in parallel; output bytes depend only on `params`.
+pub fn generate(params: &SynthParams, out_dir: &Path) -> Result<SynthScene> {
+    generate_with(params, out_dir, false)
+}
+
+/// Like [`generate`], optionally also writing `<out_dir>/<scene_id>.tar`.
+pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<SynthScene> {
+    params.validate()?;
+    let world = room::build(params.seed);
+    let sid = scene_id(params.seed);
+    let dir = out_dir.join(&sid);
+    let color_k = color_intrinsics(params.color_size.0, params.color_size.1);
+    let depth_k = color_k.scaled_to(params.depth_size.0, params.depth_size.1);
+    let poses = path::camera_path(&world, params.frames, params.seed);
+    let invalid = noise::invalid_pose_frames(params);
+    let frames: Vec<SynthFrame> = poses
+        .iter()
+        .enumerate()
+        .map(|(i, p)| SynthFrame {
+            name: (i as u64 * params.frame_step as u64).to_string(),
+            pose_aligned: *p,
+            pose_valid: !invalid.contains(&i),
+        })
+        .collect();
+
+    let writer = output::SceneWriter::create(&dir, params.layout)
+        .with_context(|| format!("synth: cannot create scene directory {}", dir.display()))?;
+    writer.write_static(&world, &color_k, &depth_k)?;
+    let scene_renderer = render::Renderer::new(&world);
+    frames
+        .par_iter()
+        .enumerate()
+        .try_for_each(|(i, f)| -> Result<()> {
+            let color = scene_renderer.render_color(&f.pose_aligned, &color_k, params, i);
+            let mut depth = scene_renderer.render_depth(&f.pose_aligned, &depth_k);
+            let mut rgb = color.rgb;
+            let mut pose_out = f.pose_aligned;
+            if params.noise == Noise::Realistic {
+                noise::depth_noise(&mut depth, params.seed, i);
+                noise::color_noise(&mut rgb, params.seed, i);
+                pose_out = noise::jitter_pose(&pose_out, params.seed, i);
+            }
+            let pose_world = world.align_inv * pose_out;
+            writer.write_frame(
+                &f.name,
+                &rgb,
+                &color_k,
+                &depth.mm,
+                &depth_k,
+                &color.instance,
+                f.pose_valid.then_some(&pose_world),
+                params.jpeg_quality,
+            )
+        })?;
+
+    let objects = world.output_objects();
+    let queries = queries::make_queries(&sid, &objects);
+    let tar_path = if tar {
+        Some(output::write_tar(&dir, out_dir, &sid)?)
+    } else {
+        None
+    };
+    Ok(SynthScene {
+        scene_id: sid,
+        dir,
+        tar: tar_path,
+        room_size: world.size,
+        objects,
+        queries,
+        frames,
+        axis_align: world.align,
+        color_intrinsics: color_k,
+        depth_intrinsics: depth_k,
+        params: params.clone(),
+    })
+}
