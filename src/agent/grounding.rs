@@ -7,7 +7,7 @@ use serde_json::{json, Value};
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::preselect::Preselection;
+use super::preselect::{same_class, Preselection};
 use super::stitching::Grids;
 use super::vlm_log::VlmLog;
 use super::{instance, step, vlm_failure, VlmGrounder};
@@ -155,7 +155,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
             Some(i) => i.clone(),
             None => super::stitching::decode(&ctx.scene, &[idx]).await?.remove(&idx).ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?,
         };
-        let dets: Vec<Detection> = redetect(g, ctx, idx, image.clone()).await?.into_iter().filter(|d| &d.label == det_class).collect();
+        let dets: Vec<Detection> = redetect(g, ctx, idx, image.clone()).await?.into_iter().filter(|d| same_class(&d.label, det_class)).collect();
         let det_json: Vec<Value> = dets.iter().map(|d| json!({"box": d.bbox, "score": d.score, "label": d.label})).collect();
         step(ctx, "detection", json!({"image_id": format!("{idx:05}"), "class": det_class}), json!({"image_id": format!("{idx:05}"), "frame": ctx.scene.frames[idx].name, "detections": det_json}), td).await;
         match dets.len() {

@@ -21,6 +21,11 @@ pub struct Preselection {
     pub fallback: Option<String>,
 }
 
+/// Does a detection label name the detector class (compared in normalised form)?
+pub fn same_class(label: &str, class: &str) -> bool {
+    label == class || crate::vision::synonyms::normalize(label) == crate::vision::synonyms::normalize(class)
+}
+
 /// `n` indices spread evenly over `items` (all of them when there are fewer).
 pub fn evenly_sampled(items: &[usize], n: usize) -> Vec<usize> {
     if items.len() <= n || n == 0 {
@@ -43,7 +48,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
             let hits: Vec<usize> = usable
                 .iter()
                 .copied()
-                .filter(|i| dets.get(i).is_some_and(|d| d.iter().any(|d| &d.label == c && d.score > g.params.preselect_score)))
+                .filter(|i| dets.get(i).is_some_and(|d| d.iter().any(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)))
                 .collect();
             if hits.is_empty() {
                 (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("no frame has a {c:?} detection above {}", g.params.preselect_score)))

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::grounding::Choice;
-use super::preselect::Preselection;
+use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
 use crate::geometry::ensemble::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::{Aabb, GeometryParams, Mask};
@@ -102,7 +102,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         let best = pre.detector_class.as_ref().and_then(|c| {
             dets.get(&v.index)?
                 .iter()
-                .filter(|d| &d.label == c && d.score > g.params.preselect_score)
+                .filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)
                 .map(|d| (box_iou(d.bbox, v.bbox), d.bbox))
                 .filter(|(iou, _)| *iou >= 0.3)
                 .max_by(|a, b| a.0.total_cmp(&b.0))
