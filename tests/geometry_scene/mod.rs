@@ -333,6 +333,11 @@ pub fn align_matrix() -> Matrix4<f64> {
 
 /// Render `n_views` views (colour `cw` x `ch`, depth at 3/4 of that) around the room.
 pub fn render_scene(seed: u64, cw: u32, ch: u32, n_views: usize) -> Scene {
+    render_scene_sized(seed, (cw, ch), (cw * 3 / 4, ch * 3 / 4), n_views)
+}
+
+/// Render `n_views` views with explicit colour and depth image sizes.
+pub fn render_scene_sized(seed: u64, (cw, ch): (u32, u32), (dw, dh): (u32, u32), n_views: usize) -> Scene {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let objects = default_objects();
     let casters: Vec<_> = objects.iter().map(|o| (*o, Caster::new(o))).collect();
@@ -344,7 +349,6 @@ pub fn render_scene(seed: u64, cw: u32, ch: u32, n_views: usize) -> Scene {
         width: cw,
         height: ch,
     };
-    let (dw, dh) = (cw * 3 / 4, ch * 3 / 4);
     let dk = color.scaled_to(dw, dh);
     let align = align_matrix();
     let align_inv = align.try_inverse().unwrap_or_else(Matrix4::identity);
