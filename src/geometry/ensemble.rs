@@ -84,7 +84,7 @@ pub fn find_views(
                 }
             }
             let frac = n as f64 / probe.len() as f64;
-            (n > 0 && frac >= params.min_visible_fraction).then(|| ViewCandidate {
+            (n > 0 && frac >= params.min_visible_fraction).then_some(ViewCandidate {
                 index: c.index,
                 visible_fraction: frac,
                 visible_points: n,
