@@ -5,9 +5,7 @@
 mod geometry_scene;
 
 use geometry_scene::{render_scene, Scene};
-use grounder::geometry::{
-    find_views, fuse_views, mask_points, single_view_box, CandidateFrame, GeometryParams,
-};
+use grounder::geometry::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame, GeometryParams};
 
 const W: u32 = 320;
 const H: u32 = 240;
@@ -77,10 +75,7 @@ fn evaluate(scene: &Scene, p: &GeometryParams) -> anyhow::Result<Vec<Outcome>> {
         for c in &found {
             let v = &scene.views[c.index];
             if let Some(id) = v.majority_id(&c.pixels) {
-                others.push((
-                    c.index,
-                    mask_points(&v.mask_of(id), &v.camera, &v.depth, p)?,
-                ));
+                others.push((c.index, mask_points(&v.mask_of(id), &v.camera, &v.depth, p)?));
             }
         }
         let fused = fuse_views(&anchor, &others, p);
@@ -160,9 +155,7 @@ fn projection_then_backprojection_is_identity_within_noise() -> anyhow::Result<(
             anyhow::bail!("point {q} behind its own camera")
         };
         // A point from pixel (x, y) reprojects onto (x, y) and reads back its own depth.
-        max_px = max_px
-            .max((pr.u - pr.u.round()).abs())
-            .max((pr.v - pr.v.round()).abs());
+        max_px = max_px.max((pr.u - pr.u.round()).abs()).max((pr.v - pr.v.round()).abs());
         visible += pr.visible as usize;
     }
     assert!(max_px < 1e-6, "reprojection off the pixel grid by {max_px}");
@@ -171,5 +164,46 @@ fn projection_then_backprojection_is_identity_within_noise() -> anyhow::Result<(
         pts.len(),
         "every back-projected point must be visible in its own view"
     );
+    Ok(())
+}
+
+#[test]
+fn chamfer_filter_drops_a_wrongly_segmented_view() -> anyhow::Result<()> {
+    let scene = render_scene(4, W, H, 12);
+    let p = params();
+    let (target, wrong) = (1u16, 4u16); // table; the agent mistakenly segments the sofa
+    let Some(best) = (0..scene.views.len()).max_by_key(|&i| scene.views[i].mask_of(target).count()) else {
+        anyhow::bail!("no views");
+    };
+    let bv = &scene.views[best];
+    let anchor = mask_points(&bv.mask_of(target), &bv.camera, &bv.depth, &p)?;
+    let candidates: Vec<CandidateFrame> = scene
+        .views
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != best)
+        .map(|(i, v)| CandidateFrame {
+            index: i,
+            camera: &v.camera,
+            depth: &v.depth,
+        })
+        .collect();
+    let mut others = Vec::new();
+    // Views in the order find_views ranks them (most of the anchor visible first).
+    for i in find_views(&anchor, &candidates, &p).iter().map(|c| c.index) {
+        let v = &scene.views[i];
+        let (right, bad) = (v.mask_of(target), v.mask_of(wrong));
+        if right.count() > 500 && bad.count() > 500 && others.len() < 2 {
+            others.push((i, mask_points(&right, &v.camera, &v.depth, &p)?));
+            others.push((100 + i, mask_points(&bad, &v.camera, &v.depth, &p)?));
+        }
+    }
+    anyhow::ensure!(others.len() == 2, "scene lacks a view showing both objects");
+    let r = fuse_views(&anchor, &others, &p);
+    println!("{}", serde_json::to_string(&r.views)?);
+    assert!(r.views[0].kept, "same object dropped: {:?}", r.views[0]);
+    assert!(!r.views[1].kept, "wrong object kept: {:?}", r.views[1]);
+    let gt = scene.objects[0].gt_box();
+    assert!(r.aabb.is_some_and(|b| b.iou(&gt) > 0.5), "{:?} vs {gt:?}", r.aabb);
     Ok(())
 }
