@@ -3,6 +3,7 @@
 //! a kiddo k-d tree.
 
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 use std::num::NonZeroUsize;
 
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
@@ -16,13 +17,33 @@ fn build_tree(points: &[Point3<f64>]) -> Tree {
     Tree::new_from_slice(&coords)
 }
 
+/// Multiply-xorshift hasher for voxel keys (SipHash dominates the cost otherwise).
+#[derive(Default)]
+struct VoxelHasher(u64);
+
+impl Hasher for VoxelHasher {
+    fn finish(&self) -> u64 {
+        let h = self.0.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        h ^ (h >> 29)
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x100_0000_01B3);
+        }
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.0 = (self.0.rotate_left(21) ^ v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
+}
+
 /// One point per occupied voxel of side `voxel` (the centroid of that voxel's points),
 /// in order of first occurrence. `voxel <= 0` returns the input unchanged.
 pub fn voxel_downsample(points: &[Point3<f64>], voxel: f64) -> Vec<Point3<f64>> {
     if voxel <= 0.0 || points.is_empty() {
         return points.to_vec();
     }
-    let mut slot: HashMap<(i64, i64, i64), usize> = HashMap::with_capacity(points.len() / 4);
+    let mut slot: HashMap<(i64, i64, i64), usize, BuildHasherDefault<VoxelHasher>> =
+        HashMap::with_capacity_and_hasher(points.len() / 4, Default::default());
     let mut sums: Vec<([f64; 3], u32)> = Vec::new();
     for p in points {
         let key = (

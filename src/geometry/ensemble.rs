@@ -84,7 +84,7 @@ pub fn find_views(
                 }
             }
             let frac = n as f64 / probe.len() as f64;
-            (n > 0 && frac >= params.min_visible_fraction).then(|| ViewCandidate {
+            (n > 0 && frac >= params.min_visible_fraction).then_some(ViewCandidate {
                 index: c.index,
                 visible_fraction: frac,
                 visible_points: n,
@@ -122,6 +122,8 @@ pub struct FusionResult {
     pub fused_points: usize,
     /// Points after outlier removal.
     pub kept_points: usize,
+    /// Voxel size (m) finally used on the union (0 = none).
+    pub fusion_voxel: f64,
     pub views: Vec<ViewDecision>,
 }
 
@@ -129,7 +131,8 @@ pub struct FusionResult {
 /// 1. chamfer distance of each view to the anchor, both clouds voxel-downsampled by
 ///    `params.chamfer_voxel`; drop the view when it exceeds `params.chamfer_threshold`
 ///    (or when either cloud is empty);
-/// 2. union of the anchor and kept views, downsampled by `params.fusion_voxel`;
+/// 2. union of the anchor and kept views, downsampled by `params.fusion_voxel` (doubled
+///    until at most `params.max_fused_points` remain);
 /// 3. statistical outlier removal (`sor_neighbors`, `sor_std_ratio`); 4. AABB.
 pub fn fuse_views(
     anchor: &[Point3<f64>],
@@ -152,13 +155,23 @@ pub fn fuse_views(
             points: pts.len(),
         });
     }
-    let fused = voxel_downsample(&union, params.fusion_voxel);
+    let mut voxel = params.fusion_voxel;
+    let mut fused = voxel_downsample(&union, voxel);
+    if params.max_fused_points > 0 && voxel > 0.0 {
+        // Coarsen the already-downsampled cloud (centroids of centroids: cheap, and
+        // within a voxel of the exact result).
+        while fused.len() > params.max_fused_points {
+            voxel *= 2.0;
+            fused = voxel_downsample(&fused, voxel);
+        }
+    }
     let kept = remove_statistical_outliers(&fused, params.sor_neighbors, params.sor_std_ratio);
     FusionResult {
         aabb: Aabb::from_points(&kept),
         anchor_points: anchor.len(),
         fused_points: fused.len(),
         kept_points: kept.len(),
+        fusion_voxel: voxel.max(0.0),
         views,
     }
 }

@@ -63,9 +63,46 @@ pub fn keep_largest_components(mask: &Mask, keep: usize) -> Mask {
     }
 }
 
+/// Pixel bounds [x0, y0, x1, y1) of the set pixels grown by `margin` (clamped), if any.
+fn bounds(mask: &Mask, margin: u32) -> Option<[u32; 4]> {
+    let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+    for y in 0..mask.height {
+        let row = &mask.data[(y * mask.width) as usize..((y + 1) * mask.width) as usize];
+        if let (Some(a), Some(b)) = (row.iter().position(|&v| v), row.iter().rposition(|&v| v)) {
+            (x0, x1) = (x0.min(a as u32), x1.max(b as u32 + 1));
+            (y0, y1) = (y0.min(y), y + 1);
+        }
+    }
+    (x1 > 0).then(|| {
+        [x0.saturating_sub(margin), y0.saturating_sub(margin), (x1 + margin).min(mask.width), (y1 + margin).min(mask.height)]
+    })
+}
+
+fn crop(mask: &Mask, b: [u32; 4]) -> Mask {
+    let mut out = Mask::new(b[2] - b[0], b[3] - b[1]);
+    for y in b[1]..b[3] {
+        let src = (y * mask.width + b[0]) as usize;
+        let dst = ((y - b[1]) * out.width) as usize;
+        out.data[dst..dst + out.width as usize].copy_from_slice(&mask.data[src..src + out.width as usize]);
+    }
+    out
+}
+
 /// The paper's post-processing: erosion by `kernel`, then the `keep` largest components.
+/// Works on the mask's bounding box (plus a background margin, so the result is the same
+/// as on the whole image) to keep the cost proportional to the object, not the frame.
 pub fn postprocess_mask(mask: &Mask, kernel: u32, keep: usize) -> Mask {
-    keep_largest_components(&erode_square(mask, kernel), keep)
+    let Some(b) = bounds(mask, 2) else {
+        return mask.clone();
+    };
+    let part = keep_largest_components(&erode_square(&crop(mask, b), kernel), keep);
+    let mut out = Mask::new(mask.width, mask.height);
+    for y in b[1]..b[3] {
+        let dst = (y * mask.width + b[0]) as usize;
+        let src = ((y - b[1]) * part.width) as usize;
+        out.data[dst..dst + part.width as usize].copy_from_slice(&part.data[src..src + part.width as usize]);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -106,6 +143,20 @@ mod tests {
         let mut t = Mask::new(30, 30);
         rect(&mut t, 10, 10, 14, 14);
         assert_eq!(erode_square(&t, 5).count(), 0);
+    }
+
+    #[test]
+    fn cropped_postprocess_equals_full_image() {
+        let mut m = Mask::new(60, 40);
+        rect(&mut m, 0, 3, 20, 30); // touches the left border
+        rect(&mut m, 30, 10, 45, 25);
+        rect(&mut m, 50, 0, 58, 6); // touches the top border
+        rect(&mut m, 25, 34, 29, 38);
+        for (k, keep) in [(3, 2), (5, 2), (3, 0), (7, 1)] {
+            let full = keep_largest_components(&erode_square(&m, k), keep);
+            assert_eq!(postprocess_mask(&m, k, keep), full, "kernel {k} keep {keep}");
+        }
+        assert_eq!(postprocess_mask(&Mask::new(5, 5), 3, 2).count(), 0);
     }
 
     #[test]

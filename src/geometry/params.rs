@@ -17,6 +17,8 @@ pub struct GeometryParams {
     pub pixel_stride: u32,
     /// Voxel size (m) for downsampling back-projected mask points (0 = off).
     pub mask_voxel: f64,
+    /// Back-project at most one point per depth pixel (see `BackprojectOptions`).
+    pub one_point_per_depth_pixel: bool,
     /// Statistical outlier removal: neighbours per point (Open3D `nb_neighbors`, self included).
     pub sor_neighbors: usize,
     /// Statistical outlier removal: `std_ratio`.
@@ -37,6 +39,9 @@ pub struct GeometryParams {
     pub chamfer_voxel: f64,
     /// Voxel size (m) applied to the fused union before outlier removal (0 = off).
     pub fusion_voxel: f64,
+    /// Cost bound: when the union still has more points than this after `fusion_voxel`,
+    /// the voxel is doubled until it fits (0 = no bound).
+    pub max_fused_points: usize,
 }
 
 impl Default for GeometryParams {
@@ -46,6 +51,7 @@ impl Default for GeometryParams {
             keep_components: 2,
             pixel_stride: 1,
             mask_voxel: 0.0,
+            one_point_per_depth_pixel: true,
             sor_neighbors: 5,
             sor_std_ratio: 1.0,
             visibility_tol_abs: 0.05,
@@ -56,6 +62,7 @@ impl Default for GeometryParams {
             chamfer_threshold: 0.1,
             chamfer_voxel: 0.02,
             fusion_voxel: 0.01,
+            max_fused_points: 30_000,
         }
     }
 }
@@ -65,5 +72,21 @@ impl GeometryParams {
     #[inline]
     pub fn visibility_tolerance(&self, z: f64) -> f64 {
         self.visibility_tol_abs + self.visibility_tol_rel * z
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn serde_defaults_and_partial_override() {
+        let d: GeometryParams = serde_json::from_str("{}").unwrap_or_else(|_| GeometryParams { max_views: 0, ..Default::default() });
+        assert_eq!(d, GeometryParams::default());
+        assert_eq!((d.erode_kernel, d.keep_components, d.sor_neighbors, d.max_views), (15, 2, 5, 7));
+        let p: GeometryParams = serde_json::from_str(r#"{"erode_kernel": 5, "chamfer_threshold": 0.2}"#)
+            .unwrap_or_default();
+        assert_eq!((p.erode_kernel, p.chamfer_threshold, p.sor_std_ratio), (5, 0.2, 1.0));
+        assert!((p.visibility_tolerance(2.0) - 0.11).abs() < 1e-12);
     }
 }

@@ -25,6 +25,10 @@ pub struct BackprojectOptions {
     pub stride: u32,
     /// Voxel size (m) for downsampling the resulting points (0 = off).
     pub voxel: f64,
+    /// Emit at most one point per depth pixel (the first mask pixel that reads it). When
+    /// colour is larger than depth (ScanNet: ~2x), several colour pixels read the same
+    /// depth value; this keeps one point per measurement.
+    pub one_per_depth_pixel: bool,
 }
 
 impl Default for BackprojectOptions {
@@ -32,6 +36,7 @@ impl Default for BackprojectOptions {
         Self {
             stride: 1,
             voxel: 0.0,
+            one_per_depth_pixel: false,
         }
     }
 }
@@ -41,6 +46,7 @@ impl From<&GeometryParams> for BackprojectOptions {
         Self {
             stride: p.pixel_stride.max(1),
             voxel: p.mask_voxel,
+            one_per_depth_pixel: p.one_point_per_depth_pixel,
         }
     }
 }
@@ -119,6 +125,8 @@ pub fn backproject_mask(
     let stride = opts.stride.max(1) as usize;
     let w = mask.width as usize;
     let mut out = Vec::new();
+    let dw = cam.depth_size.0 as usize;
+    let mut used = if opts.one_per_depth_pixel { vec![false; depth.data.len()] } else { Vec::new() };
     for y in (0..mask.height as usize).step_by(stride) {
         let row = &mask.data[y * w..(y + 1) * w];
         for x in (0..w).step_by(stride) {
@@ -126,6 +134,14 @@ pub fn backproject_mask(
                 continue;
             }
             let (u, v) = (x as f64, y as f64);
+            if opts.one_per_depth_pixel {
+                let (dx, dy) = cam.depth_lookup_pixel(u, v);
+                let i = dy as usize * dw + dx as usize;
+                if used[i] {
+                    continue;
+                }
+                used[i] = true;
+            }
             if let Some(z) = cam.depth_at_color(depth, u, v) {
                 out.push(transform_point(&m, &cam.color.unproject(u, v, z)));
             }
@@ -244,6 +260,17 @@ mod tests {
             "{}",
             pts[1]
         );
+    }
+
+    #[test]
+    fn one_point_per_depth_pixel() {
+        let c = cam(false); // colour 80x60, depth 40x30
+        let depth = DepthMap::new(40, 30, vec![2000; 1200]);
+        let mask = Mask::from_box(80, 60, [0.0, 0.0, 80.0, 60.0]);
+        let all = backproject_mask(&mask, &c, &depth, BackprojectOptions::default()).unwrap_or_default();
+        let opts = BackprojectOptions { one_per_depth_pixel: true, ..Default::default() };
+        let one = backproject_mask(&mask, &c, &depth, opts).unwrap_or_default();
+        assert_eq!((all.len(), one.len()), (4800, 1200));
     }
 
     #[test]
