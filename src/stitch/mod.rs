@@ -2,13 +2,15 @@
 //! and the visual-retrieval benchmark.
 //!
 //! Entry points for the agent: [`plan`], [`render_grid`], [`encode_jpeg`], [`stitch_all`],
-//! [`annotate_instances`], [`resize_to_limit`].
+//! [`annotate_instances`], [`resize_to_limit`]. The visual-retrieval benchmark lives in
+//! [`retrieval`].
 
 pub mod annotate;
 pub mod cli;
 pub mod label;
 pub mod plan;
 pub mod render;
+pub mod retrieval;
 
 pub use annotate::{annotate_instances, AnnotateOptions};
 pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
