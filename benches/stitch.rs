@@ -2,7 +2,10 @@
 //! (target < 150 ms on 2 cores), and the same including JPEG decode from disk.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use grounder::stitch::{encode_jpeg, load_frames, plan, stitch_all, StitchOptions};
+use grounder::stitch::{
+    decode_image, encode_jpeg, load_frames, plan, render_grid, stitch_all, ResizeFilter,
+    StitchOptions,
+};
 use image::{Rgb, RgbImage};
 use rand::{Rng, SeedableRng};
 
@@ -47,6 +50,35 @@ fn bench(c: &mut Criterion) {
     g.sample_size(20);
     g.bench_function("48_decoded_frames_to_6_jpeg_grids", |b| {
         b.iter(|| stitch_all(&tiles, 6, &opts).map(|v| v.len()).unwrap_or(0))
+    });
+
+    let fast = StitchOptions {
+        resize_filter: ResizeFilter::Bilinear,
+        ..opts.clone()
+    };
+    g.bench_function("48_decoded_frames_to_6_jpeg_grids_bilinear", |b| {
+        b.iter(|| stitch_all(&tiles, 6, &fast).map(|v| v.len()).unwrap_or(0))
+    });
+    // Parts, for the breakdown: one (2, 4) grid rendered, and its JPEG encoding.
+    let spec = plan(48, 6)[0];
+    g.bench_function("render_one_2x4_grid", |b| {
+        b.iter(|| {
+            render_grid(&tiles[..8], &spec, &opts)
+                .map(|i| i.width())
+                .unwrap_or(0)
+        })
+    });
+    let grid = render_grid(&tiles[..8], &spec, &opts).expect("render");
+    g.bench_function("encode_one_grid_jpeg", |b| {
+        b.iter(|| {
+            encode_jpeg(&grid, opts.jpeg_quality)
+                .map(|v| v.len())
+                .unwrap_or(0)
+        })
+    });
+    g.bench_function("decode_one_frame_jpeg", |b| {
+        let jpeg = encode_jpeg(&frames[0], 90).expect("encode");
+        b.iter(|| decode_image(&jpeg).map(|i| i.width()).unwrap_or(0))
     });
 
     let dir = tempfile::tempdir().expect("temp dir");

@@ -222,7 +222,7 @@ async fn bench_against_canned_server_reports_recall() {
     assert!((r.accuracy - 0.75).abs() < 1e-12, "accuracy {}", r.accuracy);
     assert!(r.mean_request_secs >= 0.0);
 
-    let bodies = seen.lock().unwrap();
+    let bodies = seen.lock().unwrap().clone();
     assert_eq!(bodies.len(), 1);
     assert_eq!(bodies[0]["model"], "test-model");
     let content = bodies[0]["messages"][0]["content"].as_array().unwrap();

@@ -16,6 +16,6 @@ pub use annotate::{annotate_instances, AnnotateOptions};
 pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
 pub use render::{
     decode_image, encode_jpeg, jpeg_data_url, load_frames, render_grid,
-    render_grid_with_placements, resize_to_limit, stitch_all, stitch_with_specs, StitchOptions,
-    StitchedImage, TilePlacement,
+    render_grid_with_placements, resize_to_limit, resize_to_limit_with, stitch_all,
+    stitch_with_specs, ResizeFilter, StitchOptions, StitchedImage, TilePlacement,
 };
