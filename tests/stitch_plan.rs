@@ -141,8 +141,8 @@ fn no_image_lost_or_duplicated_and_limit_respected() {
             let starts = grid_starts(&p);
             let mut seen = vec![0u8; n];
             for (s, start) in p.iter().zip(starts) {
-                for i in start..start + s.frames as usize {
-                    seen[i] += 1;
+                for c in &mut seen[start..start + s.frames as usize] {
+                    *c += 1;
                 }
             }
             assert!(seen.iter().all(|&c| c == 1), "n={n} L={l}");

@@ -244,3 +244,54 @@ fn instance_ids_are_white_on_black_at_box_centres() {
 fn img_px(img: &RgbImage, x: u32, y: u32) -> [u8; 3] {
     img.get_pixel(x, y).0
 }
+
+/// Writes `docs/stitch-example.png` (all stitched images of 40 synthetic frames, L = 6) for
+/// a look by eye. Run with `GROUNDER_WRITE_DOCS=1 cargo test --test stitch_render -- --ignored`.
+#[test]
+#[ignore]
+fn write_contact_sheet() {
+    if std::env::var("GROUNDER_WRITE_DOCS").is_err() {
+        return;
+    }
+    let frames = grounder::stitch::retrieval::synthetic_pool(40, 648, 484, 7);
+    let tiles: Vec<(String, &RgbImage)> = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| (format!("{:05}", i * 13), f))
+        .collect();
+    let opts = StitchOptions {
+        max_side: 480,
+        jpeg_quality: 85,
+        ..StitchOptions::default()
+    };
+    let out = stitch_all(&tiles, 6, &opts).unwrap();
+    let imgs: Vec<RgbImage> = out.iter().map(|s| decode_image(&s.jpeg).unwrap()).collect();
+    // Flow layout, 10 px gaps, rows at most 1100 px wide.
+    let (gap, max_w) = (10u32, 1100u32);
+    let mut rows: Vec<Vec<&RgbImage>> = vec![vec![]];
+    let mut w = gap;
+    for im in &imgs {
+        if w + im.width() + gap > max_w && !rows.last().unwrap().is_empty() {
+            rows.push(vec![]);
+            w = gap;
+        }
+        rows.last_mut().unwrap().push(im);
+        w += im.width() + gap;
+    }
+    let height: u32 = rows
+        .iter()
+        .map(|r| r.iter().map(|i| i.height()).max().unwrap() + gap)
+        .sum();
+    let mut sheet = RgbImage::from_pixel(max_w, height + gap, Rgb([64, 64, 64]));
+    let mut y = gap;
+    for r in &rows {
+        let mut x = gap;
+        for im in r {
+            image::imageops::replace(&mut sheet, *im, x as i64, y as i64);
+            x += im.width() + gap;
+        }
+        y += r.iter().map(|i| i.height()).max().unwrap() + gap;
+    }
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/stitch-example.png");
+    sheet.save(&path).unwrap();
+}

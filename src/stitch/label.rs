@@ -174,8 +174,8 @@ pub fn draw_label(img: &mut RgbImage, text: &str, x: i32, y: i32, style: &LabelS
             }
             let a = cov.clamp(0.0, 1.0);
             let p = img.get_pixel_mut(px as u32, py as u32);
-            for c in 0..3 {
-                p.0[c] = (f32::from(p.0[c]) * (1.0 - a) + f32::from(fg[c]) * a).round() as u8;
+            for (ch, f) in p.0.iter_mut().zip(fg) {
+                *ch = (f32::from(*ch) * (1.0 - a) + f32::from(f) * a).round() as u8;
             }
         });
     });

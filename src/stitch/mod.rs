@@ -2,18 +2,20 @@
 //! and the visual-retrieval benchmark.
 //!
 //! Entry points for the agent: [`plan`], [`render_grid`], [`encode_jpeg`], [`stitch_all`],
-//! [`annotate_instances`], [`resize_to_limit`].
+//! [`annotate_instances`], [`resize_to_limit`]. The visual-retrieval benchmark lives in
+//! [`retrieval`].
 
 pub mod annotate;
 pub mod cli;
 pub mod label;
 pub mod plan;
 pub mod render;
+pub mod retrieval;
 
 pub use annotate::{annotate_instances, AnnotateOptions};
 pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
 pub use render::{
     decode_image, encode_jpeg, jpeg_data_url, load_frames, render_grid,
-    render_grid_with_placements, resize_to_limit, stitch_all, stitch_with_specs, StitchOptions,
-    StitchedImage, TilePlacement,
+    render_grid_with_placements, resize_to_limit, resize_to_limit_with, stitch_all,
+    stitch_with_specs, ResizeFilter, StitchOptions, StitchedImage, TilePlacement,
 };
