@@ -17,7 +17,7 @@ pub(crate) fn invalid_pose_frames(params: &SynthParams) -> Vec<usize> {
     if params.noise != Noise::Realistic || params.frames < 4 {
         return Vec::new();
     }
-    let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ 0x1f_b0_5e);
+    let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ 0x001f_b05e);
     let n = (params.frames / 25).max(1);
     let mut v: Vec<usize> = sample(&mut rng, params.frames - 1, n)
         .into_iter()

@@ -10,7 +10,7 @@ use std::f64::consts::TAU;
 
 /// Camera-to-aligned-world poses (OpenCV axes) of `frames` views.
 pub(crate) fn camera_path(world: &World, frames: usize, seed: u64) -> Vec<Matrix4<f64>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xca3e_7a);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x00ca_3e7a);
     let (w, d, _) = world.size;
     let (cx, cy) = (w / 2.0, d / 2.0);
     let (rx, ry) = ((w / 2.0 - 1.0).max(0.3), (d / 2.0 - 1.0).max(0.3));

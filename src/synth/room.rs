@@ -239,7 +239,7 @@ fn group_colours(b: &mut Builder, label: &str, n: usize) -> Vec<String> {
 
 /// Generate a furnished room for `seed`.
 pub(crate) fn build(seed: u64) -> World {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0f_600d);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0f60);
     let (w, d, h) = (
         rng.gen_range(5.0..7.0),
         rng.gen_range(4.5..6.5),
