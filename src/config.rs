@@ -47,6 +47,10 @@ pub struct Config {
     pub prompts_dir: Option<PathBuf>,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
+    /// VLM client settings used instead of `VlmConfig::from_env()` when set (tests and
+    /// embedding; not read from the file).
+    #[serde(skip)]
+    pub vlm: Option<crate::vlm::VlmConfig>,
 }
 
 impl Default for Config {
@@ -66,6 +70,7 @@ impl Default for Config {
             ort_dylib: None,
             prompts_dir: None,
             agent: crate::agent::AgentParams::default(),
+            vlm: None,
         }
     }
 }
@@ -104,13 +109,16 @@ impl Config {
     fn from_file(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow::anyhow!("cannot read config file {}: {e}", path.display()))?;
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
+        toml::from_str(&text)
+            .map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
     }
 
     fn apply_env(&mut self) -> anyhow::Result<()> {
         fn num<T: std::str::FromStr>(key: &str, into: &mut T) -> anyhow::Result<()> {
             if let Ok(v) = std::env::var(key) {
-                *into = v.parse().map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
+                *into = v
+                    .parse()
+                    .map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
             }
             Ok(())
         }
