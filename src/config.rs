@@ -109,16 +109,13 @@ impl Config {
     fn from_file(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow::anyhow!("cannot read config file {}: {e}", path.display()))?;
-        toml::from_str(&text)
-            .map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
     }
 
     fn apply_env(&mut self) -> anyhow::Result<()> {
         fn num<T: std::str::FromStr>(key: &str, into: &mut T) -> anyhow::Result<()> {
             if let Ok(v) = std::env::var(key) {
-                *into = v
-                    .parse()
-                    .map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
+                *into = v.parse().map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
             }
             Ok(())
         }
