@@ -124,6 +124,11 @@ impl FakeVlm {
         self.script.queue.lock().unwrap().extend(replies);
     }
 
+    /// Drop the next scripted reply.
+    pub fn script_pop(&self) -> Option<Reply> {
+        self.script.queue.lock().unwrap().pop_front()
+    }
+
     /// Replies not yet used.
     pub fn remaining(&self) -> usize {
         self.script.queue.lock().unwrap().len()
