@@ -125,6 +125,7 @@ impl FakeVlm {
     }
 
     /// Drop the next scripted reply.
+    #[allow(dead_code)]
     pub fn script_pop(&self) -> Option<Reply> {
         self.script.queue.lock().unwrap().pop_front()
     }
