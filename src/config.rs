@@ -47,6 +47,10 @@ pub struct Config {
     pub prompts_dir: Option<PathBuf>,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
+    /// VLM client settings used instead of `VlmConfig::from_env()` when set (tests and
+    /// embedding; not read from the file).
+    #[serde(skip)]
+    pub vlm: Option<crate::vlm::VlmConfig>,
 }
 
 impl Default for Config {
@@ -66,6 +70,7 @@ impl Default for Config {
             ort_dylib: None,
             prompts_dir: None,
             agent: crate::agent::AgentParams::default(),
+            vlm: None,
         }
     }
 }

@@ -113,7 +113,7 @@ fn build_vlm_grounder(cfg: &Config, detector: Option<Arc<dyn Detector>>) -> anyh
     let detector = detector.ok_or_else(|| anyhow::anyhow!("no detector is loaded (GROUNDER_DETECTOR={:?})", cfg.detector))?;
     let segmenter = crate::vision::build_segmenter(&cfg.segmenter, &cfg.vision())?;
     let prompts = Prompts::load(cfg.prompts_dir.as_deref()).map_err(|e| anyhow::anyhow!("prompts: {e}"))?;
-    let client = VlmClient::new(VlmConfig::from_env()).map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
+    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_else(VlmConfig::from_env)).map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
     Ok(VlmGrounder::new(client, prompts, detector, cfg.detector.clone(), segmenter, cfg.agent.clone()))
 }
 

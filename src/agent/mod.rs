@@ -118,7 +118,7 @@ impl VlmGrounder {
         let pre = preselect::run(self, &ctx, &analysis).await?;
         let grids = stitching::run(self, &ctx, &pre).await?;
         let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
-        let projected = projection::run(self, &ctx, &pre, &choice).await?;
+        let projected = projection::run(self, &ctx, &pre, &choice, &grids.decoded).await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

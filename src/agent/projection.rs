@@ -7,6 +7,7 @@
 use image::RgbImage;
 use nalgebra::Point3;
 use serde_json::json;
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -58,7 +59,8 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
     Ok((mask, pts))
 }
 
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: &Choice) -> Result<Projected, JobFailure> {
+/// `known` holds frames already decoded (by stitching); only the other views are decoded.
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: &Choice, known: &HashMap<usize, Arc<RgbImage>>) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
@@ -110,7 +112,14 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         view_boxes.push((v.index, best.map(|b| b.1).unwrap_or(v.bbox), best.is_some()));
     }
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
-    let decoded = super::stitching::decode(&scene, &idxs).await?;
+    let missing: Vec<usize> = idxs.iter().copied().filter(|i| !known.contains_key(i)).collect();
+    let mut decoded = if missing.is_empty() { HashMap::new() } else { super::stitching::decode(&scene, &missing).await? };
+    for i in &idxs {
+        if let Some(im) = known.get(i) {
+            decoded.insert(*i, im.clone());
+        }
+    }
+    let views_decoded = missing.len();
     let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
     let (fusion, single) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
@@ -141,7 +150,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms}),
+        json!({"box": bbox, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms, "views_decoded": views_decoded}),
         tp,
     )
     .await;

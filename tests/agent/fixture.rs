@@ -1,0 +1,227 @@
+//! The real service (pipeline "vlm", oracle detector, depth segmenter) on port 0, talking
+//! to a fake VLM, with a small synthetic scene uploaded and indexed.
+
+use crate::fake_vlm::{FakeVlm, Reply};
+use crate::helpers::{test_config, TestApp};
+use grounder::store::Store;
+use grounder::synth::{generate_with, SynthParams, SynthScene};
+use grounder::vision::Detection;
+use grounder::vlm::{ApiKey, VlmConfig};
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+pub const API_KEY: &str = "sk-agenttest-SECRET-42";
+pub const SEED: u64 = 3;
+
+/// The scene tar, generated once per test binary.
+fn scene_tar() -> &'static (PathBuf, SynthScene) {
+    static SCENE: OnceLock<(PathBuf, SynthScene)> = OnceLock::new();
+    SCENE.get_or_init(|| {
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("agent-tests-scene");
+        let _ = std::fs::remove_dir_all(&dir);
+        let s = generate_with(&SynthParams::small(SEED), &dir, true).expect("synth scene");
+        (s.tar.clone().expect("tar written"), s)
+    })
+}
+
+pub struct Fixture {
+    pub app: TestApp,
+    pub vlm: FakeVlm,
+    pub scene_id: String,
+    pub store: Store,
+    /// Cached detections by frame index (what pre-selection reads).
+    pub dets: BTreeMap<usize, Vec<Detection>>,
+    _dir: tempfile::TempDir,
+}
+
+/// Client settings pointing at the fake: small backoff, `timeout_ms` per test.
+pub fn vlm_config(base: &str, timeout_ms: u64) -> VlmConfig {
+    VlmConfig {
+        base_url: base.into(),
+        model: "fake".into(),
+        api_key: ApiKey::new(API_KEY),
+        timeout_ms,
+        max_retries: 2,
+        backoff_base_ms: 5,
+        backoff_max_ms: 50,
+        ..VlmConfig::default()
+    }
+}
+
+impl Fixture {
+    pub async fn start(replies: Vec<Reply>, timeout_ms: u64) -> Fixture {
+        let vlm = FakeVlm::start(replies).await;
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path().to_path_buf());
+        cfg.pipeline = "vlm".into();
+        cfg.detector = "oracle".into();
+        cfg.segmenter = "depth".into();
+        cfg.workers = 1;
+        cfg.vlm = Some(vlm_config(&vlm.base, timeout_ms));
+        let app = TestApp::spawn_with(cfg).await;
+        let (tar, _) = scene_tar();
+        let r = app
+            .upload(std::fs::read(tar).unwrap(), "application/x-tar")
+            .await;
+        assert_eq!(r.status().as_u16(), 201);
+        let scene_id = r.json::<Value>().await.unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        let start = std::time::Instant::now();
+        loop {
+            let (_, s) = app.get_json(&format!("/v1/scenes/{scene_id}")).await;
+            if s["status"] == "ready" {
+                break;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "scene never became ready: {s}"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let store = Store::open(dir.path()).await.unwrap();
+        let dets = store.detections(&scene_id, "oracle").await.unwrap();
+        assert!(!dets.is_empty(), "indexing cached no detections");
+        Fixture {
+            app,
+            vlm,
+            scene_id,
+            store,
+            dets,
+            _dir: dir,
+        }
+    }
+
+    /// Frames where `class` has exactly `n` cached detections (n = 2 means "two or more").
+    pub fn frames_with(&self, class: &str, n: usize) -> Vec<usize> {
+        self.dets
+            .iter()
+            .filter(|(_, d)| {
+                let k = d
+                    .iter()
+                    .filter(|d| d.label == class && d.score > 0.2)
+                    .count();
+                if n >= 2 {
+                    k >= 2
+                } else {
+                    k == n
+                }
+            })
+            .map(|(i, _)| *i)
+            .collect()
+    }
+
+    /// Frames that hold any detection of `class` (the pre-selection).
+    pub fn offered(&self, class: &str) -> Vec<u32> {
+        self.dets
+            .iter()
+            .filter(|(_, d)| d.iter().any(|d| d.label == class && d.score > 0.2))
+            .map(|(i, _)| *i as u32)
+            .collect()
+    }
+
+    /// Submit a job and wait until it ends.
+    pub async fn run_job(&self, query: &str) -> Value {
+        let id = self.submit(query).await;
+        self.app.wait_job(&id, Duration::from_secs(60)).await
+    }
+
+    pub async fn submit(&self, query: &str) -> String {
+        let r = self.app.create_job(&self.scene_id, query).await;
+        assert_eq!(r.status().as_u16(), 202);
+        r.json::<Value>().await.unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    }
+}
+
+/// Query analysis reply naming `class`.
+pub fn analysis(class: &str) -> Reply {
+    Reply::ok(json!({"target_class": class, "attributes": [], "conditions": []}).to_string())
+}
+
+/// Grounding reply choosing `image_id`.
+pub fn pick_image(image_id: impl Into<Value>) -> Reply {
+    Reply::ok(json!({"reasoning": "it matches", "target_image_id": image_id.into(), "reference_image_ids": []}).to_string())
+}
+
+/// Instance reply choosing `object_id`.
+pub fn pick_object(object_id: u32) -> Reply {
+    Reply::ok(json!({"reasoning": "that one", "object_id": object_id}).to_string())
+}
+
+/// A class with a frame holding exactly one instance, and that frame.
+pub fn class_with_single(f: &Fixture) -> (String, usize) {
+    let mut labels: Vec<&str> = f
+        .dets
+        .values()
+        .flatten()
+        .map(|d| d.label.as_str())
+        .collect();
+    labels.sort();
+    labels.dedup();
+    for l in labels {
+        if let Some(&i) = f.frames_with(l, 1).first() {
+            return (l.to_string(), i);
+        }
+    }
+    panic!(
+        "no class has a frame with exactly one instance: {:?}",
+        f.dets
+    );
+}
+
+/// A class with a frame holding two or more instances, and that frame.
+pub fn class_with_several(f: &Fixture) -> (String, usize) {
+    let mut labels: Vec<&str> = f
+        .dets
+        .values()
+        .flatten()
+        .map(|d| d.label.as_str())
+        .collect();
+    labels.sort();
+    labels.dedup();
+    for l in labels {
+        if let Some(&i) = f.frames_with(l, 2).first() {
+            return (l.to_string(), i);
+        }
+    }
+    panic!(
+        "no class has a frame with several instances (seed {SEED}): {:?}",
+        f.dets
+    );
+}
+
+/// Step names of a finished job's trace.
+pub fn step_names(job: &Value) -> Vec<String> {
+    job["trace"]
+        .as_array()
+        .expect("trace")
+        .iter()
+        .map(|s| s["step"].as_str().unwrap_or("").to_string())
+        .collect()
+}
+
+/// All trace steps called `name`.
+pub fn steps<'a>(job: &'a Value, name: &str) -> Vec<&'a Value> {
+    job["trace"]
+        .as_array()
+        .expect("trace")
+        .iter()
+        .filter(|s| s["step"] == name)
+        .collect()
+}
+
+/// The trace must not leak image bytes or the key.
+pub fn assert_trace_clean(job: &Value) {
+    let t = job["trace"].to_string();
+    assert!(!t.contains("base64"), "trace holds base64");
+    assert!(!t.contains("data:image"), "trace holds a data URL");
+    assert!(!t.contains(API_KEY), "trace holds the API key");
+    assert!(!job.to_string().contains(API_KEY), "job holds the API key");
+}
