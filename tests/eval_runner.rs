@@ -305,12 +305,18 @@ async fn unreachable_server_is_an_error() {
 }
 
 #[test]
-fn cli_in_process_mode_is_not_available_yet() {
+fn cli_in_process_mode_reports_a_bad_dataset_in_one_line() {
+    let root = tempfile::tempdir().unwrap();
+    let out = root.path().join("report");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"))
-        .args(["eval", "--dataset", "x", "--scenes", "y", "--out", "z"])
+        .args(["eval", "--dataset", "no-such-dataset", "--scenes", "y", "--out"])
+        .arg(&out)
+        .env("GROUNDER_PIPELINE", "test")
+        .env("GROUNDER_DETECTOR", "none")
         .output()
         .unwrap();
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr)
-        .contains("in-process mode needs the pipeline; pass --server"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let last = err.lines().last().unwrap_or("");
+    assert!(last.starts_with("error: ") && last.contains("no-such-dataset"), "{err}");
 }

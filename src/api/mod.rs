@@ -47,6 +47,7 @@ pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/v1/scenes", post(scenes::upload).get(scenes::list))
         .route("/v1/scenes/{id}", get(scenes::get).delete(scenes::delete))
+        .route("/v1/scenes/{id}/index", post(scenes::reindex))
         .route("/v1/jobs", post(jobs::create).get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get))
         .route("/v1/jobs/{id}/cancel", post(jobs::cancel))

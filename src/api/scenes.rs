@@ -112,3 +112,23 @@ pub async fn delete(State(state): State<AppState>, Path(id): Path<String>) -> Re
     let _ = tokio::fs::remove_dir_all(&dir).await;
     Ok(StatusCode::NO_CONTENT)
 }
+
+/// Run the configured detector over the scene again (e.g. after changing detector); the
+/// scene is `indexing` until done and jobs on it wait.
+#[utoipa::path(post, path = "/v1/scenes/{id}/index", tag = "scenes", params(("id" = String, Path)),
+    responses((status = 202, body = SceneRecord), (status = 404, body = super::Problem, content_type = "application/problem+json"),
+              (status = 409, body = super::Problem, content_type = "application/problem+json")))]
+pub async fn reindex(State(state): State<AppState>, Path(id): Path<String>) -> Result<(StatusCode, axum::Json<SceneRecord>), ApiError> {
+    let scene = state.store.get_scene(&id).await?.ok_or_else(|| ApiError::not_found("scene", &id))?;
+    if scene.status == "indexing" {
+        return Err(ApiError::new(StatusCode::CONFLICT, "scene_indexing", format!("scene {id} is being indexed already")));
+    }
+    if state.cfg.detector == "none" {
+        return Err(ApiError::new(StatusCode::CONFLICT, "no_detector", "the service runs without a detector (detector = \"none\")"));
+    }
+    let usable = scene.frames as usize - scene.unusable_frames.len();
+    state.store.reset_index(&id, &state.cfg.detector, usable).await?;
+    (state.on_scene_stored)(id.clone());
+    let record = state.store.get_scene(&id).await?.ok_or_else(|| ApiError::not_found("scene", &id))?;
+    Ok((StatusCode::ACCEPTED, axum::Json(record)))
+}

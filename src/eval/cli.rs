@@ -13,7 +13,8 @@ pub struct EvalArgs {
     /// Folder with one scene directory per scene id.
     #[arg(long)]
     pub scenes: PathBuf,
-    /// Base URL of a running `grounder serve`; without it, in-process mode.
+    /// Base URL of a running `grounder serve`; without it the service runs in this process
+    /// (configured from the same environment variables as `grounder serve`).
     #[arg(long)]
     pub server: Option<String>,
     /// Evaluate only the first N queries.
@@ -53,8 +54,24 @@ pub async fn run_oracle_vlm(args: OracleVlmArgs) -> anyhow::Result<()> {
 
 /// Run `grounder eval` and print the headline numbers.
 pub async fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
-    let Some(server) = args.server.clone() else {
-        anyhow::bail!("in-process mode needs the pipeline; pass --server");
+    // Without --server, run the service in this process (configured from the environment,
+    // as `grounder serve` is) on a loopback port with its data under the report folder.
+    let mut in_process = None;
+    let server = match args.server.clone() {
+        Some(s) => s,
+        None => {
+            let mut cfg = crate::config::Config::load(&crate::config::ServeArgs { addr: Some("127.0.0.1:0".into()), data_dir: None, config: None })?;
+            cfg.addr = "127.0.0.1:0".into();
+            cfg.data_dir = args.out.join("service-data");
+            let app = crate::startup::Application::build(cfg).await?;
+            let url = format!("http://{}", app.local_addr()?);
+            let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+            let handle = tokio::spawn(app.run_until(async move {
+                let _ = rx.await;
+            }));
+            in_process = Some((tx, handle));
+            url
+        }
     };
     let fonts = match &args.font {
         Some(f) => vec![f.clone()],
@@ -74,7 +91,12 @@ pub async fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         job_timeout: std::time::Duration::from_secs(args.job_timeout_s),
         scene_timeout: std::time::Duration::from_secs(args.scene_timeout_s),
     };
-    let o = crate::eval::runner::run(&cfg).await?;
+    let outcome = crate::eval::runner::run(&cfg).await;
+    if let Some((tx, handle)) = in_process {
+        let _ = tx.send(());
+        let _ = handle.await;
+    }
+    let o = outcome?;
     let s = &o.summary.scanrefer.overall;
     println!(
         "{} queries ({} run now, {} resumed): Acc@0.25 {:.1} %, Acc@0.5 {:.1} %, Nr3D {:.1} %; report in {}",

@@ -147,3 +147,52 @@ fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// Indexing with the oracle detector: progress, re-indexing on request, and the refusal
+/// of scenes without instance masks.
+#[tokio::test]
+async fn scenes_are_indexed_and_can_be_reindexed() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path().join("data"));
+    cfg.detector = "oracle".into();
+    let app = TestApp::spawn_with(cfg).await;
+    let r = app.upload(tar_of(&tiny_scene_files(3), None), "application/x-tar").await;
+    assert_eq!(r.status().as_u16(), 422);
+    assert_eq!(r.json::<serde_json::Value>().await.unwrap()["code"], "instance_masks_required");
+
+    let mut p = grounder::synth::SynthParams::small(3);
+    p.frames = 4;
+    let scene = grounder::synth::generate_with(&p, &dir.path().join("scenes"), true).unwrap();
+    let tar = std::fs::read(scene.tar.as_ref().unwrap()).unwrap();
+    let r = app.upload(tar, "application/x-tar").await;
+    assert_eq!(r.status().as_u16(), 201);
+    let j: serde_json::Value = r.json().await.unwrap();
+    let id = j["id"].as_str().unwrap().to_string();
+    assert_eq!(j["status"], "indexing");
+    let usable = scene.frames.iter().filter(|f| f.pose_valid).count() as i64;
+    let wait_ready = || async {
+        for _ in 0..400 {
+            let (_, s) = app.get_json(&format!("/v1/scenes/{id}")).await;
+            if s["status"] != "indexing" {
+                return s;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(25)).await;
+        }
+        panic!("indexing did not finish");
+    };
+    let s = wait_ready().await;
+    assert_eq!((s["status"].as_str(), s["index"]["done"].as_i64(), s["index"]["total"].as_i64()), (Some("ready"), Some(usable), Some(usable)), "{s}");
+    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    let dets = store.detections(&id, "oracle").await.unwrap();
+    let n: usize = dets.values().map(Vec::len).sum();
+    assert!(n > 0, "the oracle finds the synthetic furniture");
+    let r = app.client.post(app.url(&format!("/v1/scenes/{id}/index"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let s = wait_ready().await;
+    assert_eq!(s["status"], "ready");
+    let again: usize = store.detections(&id, "oracle").await.unwrap().values().map(Vec::len).sum();
+    assert_eq!(again, n, "re-indexing replaces, never duplicates, detections");
+    let r = app.client.post(app.url("/v1/scenes/nope/index")).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 404);
+    app.stop().await;
+}
