@@ -6,7 +6,8 @@
 #
 # Environment (defaults in brackets): BENCH_DIR [target/bench-e2e], SCENES [5],
 # FRAMES [60], COLOR_SIZE [1296x968], DEPTH_SIZE [640x480], SEED [100], JOBS [2],
-# WORKERS [2], GROUNDER_BIN [built with cargo build --release], REPORT [docs/benchmark-e2e.md].
+# WORKERS [2], GROUNDER_BIN [built with cargo build --release], REPORT [docs/benchmark-e2e.md],
+# REPORT_ONLY [unset; 1 = only rewrite the report from the runs already in $BENCH_DIR].
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -70,6 +71,7 @@ NQ=$(wc -l <"$DATA/ds/queries.jsonl")
 
 CONFIGS=("0 depth" "0.2 depth" "0 box")
 for c in "${CONFIGS[@]}"; do
+    [[ "${REPORT_ONLY:-}" == 1 ]] && break
     read -r err seg <<<"$c"
     run=$BENCH_DIR/run-err$err-$seg
     rm -rf "$run"
@@ -91,6 +93,7 @@ pct() { jq -r "$1 | if . == null then \"–\" else (. * 1000 | round / 10 | tost
 num() { jq -r "$1 | if . == null then \"–\" else (. * 100 | round / 100 | tostring) end" "$2"; }
 rate() { jq -r "$1 | if . == null then \"–\" else ((.rate * 1000 | round / 10 | tostring) + \" % (\" + (.k|tostring) + \"/\" + (.n|tostring) + \")\") end" "$2"; }
 
+mkdir -p "$(dirname "$REPORT")"
 {
     echo "# End-to-end benchmark (oracle VLM, synthetic scenes)"
     echo
