@@ -95,8 +95,10 @@ mod tests {
         let p = GeometryParams::default();
         assert_eq!(p.erode_kernel_for(1296), 15);
         assert_eq!(p.erode_kernel_for(640), 7);
-        assert_eq!(p.erode_kernel_for(320), 3);
-        assert_eq!(p.erode_kernel_for(100), 1);
+        // radius 7 * 320 / 1296 = 1.73 -> 2 -> side 5; 7 * 100 / 1296 = 0.54 -> 1 -> 3.
+        assert_eq!(p.erode_kernel_for(320), 5);
+        assert_eq!(p.erode_kernel_for(100), 3);
+        assert_eq!(p.erode_kernel_for(50), 1);
         assert_eq!(p.erode_kernel_for(2592), 29);
         let fixed = GeometryParams {
             erode_reference_width: 0,
