@@ -23,7 +23,8 @@ use std::sync::{Arc, Mutex};
 /// Flags of `grounder oracle-vlm`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct OracleVlmArgs {
-    /// Address to listen on, e.g. 127.0.0.1:8011.
+    /// Address to listen on, e.g. 127.0.0.1:8011; port 0 picks a free port. The bound
+    /// address is printed on stdout as `listening on http://ADDR`.
     #[arg(long)]
     pub addr: String,
     /// Annotation folder (objects/<scene>.json, queries.jsonl).
@@ -81,7 +82,12 @@ pub async fn run(args: OracleVlmArgs) -> Result<()> {
     let listener = tokio::net::TcpListener::bind(&args.addr)
         .await
         .with_context(|| format!("cannot listen on {}", args.addr))?;
-    tracing::info!(addr = %args.addr, "oracle VLM listening");
+    // The real address (port 0 picks a free port); tests and scripts read this line.
+    let local = listener
+        .local_addr()
+        .with_context(|| format!("cannot read the address bound for {}", args.addr))?;
+    tracing::info!(addr = %local, "oracle VLM listening");
+    println!("listening on http://{local}");
     axum::serve(listener, app)
         .with_graceful_shutdown(async {
             let _ = tokio::signal::ctrl_c().await;

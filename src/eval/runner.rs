@@ -183,10 +183,15 @@ fn tokens_of(u: &Value) -> u64 {
         })
 }
 
-/// VLM calls and tokens: `usage` of the job when present, else summed over trace steps
-/// carrying a `usage` object (each one VLM call).
+/// VLM calls and tokens: `usage` of the job (top level or in `result`, where the service
+/// puts it) when present, else summed over trace steps carrying a `usage` object (each one
+/// VLM call).
 pub fn usage_of(job: &Value) -> (u32, u64) {
-    if let Some(u) = job.get("usage").filter(|u| u.is_object()) {
+    let usage = job
+        .get("usage")
+        .or_else(|| job.get("result").and_then(|r| r.get("usage")))
+        .filter(|u| u.is_object());
+    if let Some(u) = usage {
         let calls = u.get("vlm_calls").and_then(|c| c.as_u64()).unwrap_or(0);
         return (u32::try_from(calls).unwrap_or(u32::MAX), tokens_of(u));
     }
@@ -354,4 +359,19 @@ pub async fn run(cfg: &EvalConfig) -> Result<EvalOutcome> {
         skipped,
         errors,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn usage_is_read_from_the_result_as_the_service_reports_it() {
+        let job = json!({"status": "succeeded",
+            "result": {"usage": {"vlm_calls": 3, "prompt_tokens": 5296, "completion_tokens": 68, "total_tokens": 5364}}});
+        assert_eq!(usage_of(&job), (3, 5364));
+        let top = json!({"usage": {"vlm_calls": 2, "total_tokens": 10}});
+        assert_eq!(usage_of(&top), (2, 10));
+        assert_eq!(usage_of(&json!({"trace": []})), (0, 0));
+    }
 }

@@ -189,7 +189,7 @@ pub fn mask_points(
     depth: &DepthMap,
     params: &GeometryParams,
 ) -> Result<Vec<Point3<f64>>, ProjectionError> {
-    let m = super::morph::postprocess_mask(mask, params.erode_kernel, params.keep_components);
+    let m = super::morph::postprocess_mask(mask, params.erode_kernel_for(mask.width), params.keep_components);
     super::projection::backproject_mask(&m, cam, depth, params.into())
 }
 

@@ -9,8 +9,13 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct GeometryParams {
-    /// Side of the square erosion kernel in pixels (odd; 0 or 1 disables erosion). Paper: 15.
+    /// Side of the square erosion kernel in pixels at `erode_reference_width` (odd; 0 or 1
+    /// disables erosion). Paper: 15, on ScanNet's 1296-pixel-wide colour frames.
     pub erode_kernel: u32,
+    /// Colour width (px) at which `erode_kernel` applies; masks of other widths use a kernel
+    /// scaled in proportion, so the erosion removes the same angular margin whatever the
+    /// frame size (0 = never scale). ScanNet colour: 1296.
+    pub erode_reference_width: u32,
     /// How many of the largest 8-connected components to keep after erosion (0 = all). Paper: 2.
     pub keep_components: usize,
     /// Use every n-th mask pixel in x and y when back-projecting (1 = every pixel).
@@ -48,6 +53,7 @@ impl Default for GeometryParams {
     fn default() -> Self {
         Self {
             erode_kernel: 15,
+            erode_reference_width: 1296,
             keep_components: 2,
             pixel_stride: 1,
             mask_voxel: 0.0,
@@ -68,6 +74,18 @@ impl Default for GeometryParams {
 }
 
 impl GeometryParams {
+    /// Erosion kernel side (odd, >= 1) for a mask `mask_width` pixels wide: `erode_kernel`
+    /// scaled by `mask_width / erode_reference_width`.
+    pub fn erode_kernel_for(&self, mask_width: u32) -> u32 {
+        if self.erode_kernel <= 1 || self.erode_reference_width == 0 || mask_width == 0 {
+            return self.erode_kernel;
+        }
+        let radius = f64::from(self.erode_kernel / 2);
+        let scaled =
+            (radius * f64::from(mask_width) / f64::from(self.erode_reference_width)).round();
+        2 * (scaled as u32) + 1
+    }
+
     /// Depth tolerance (m) for a point seen at camera depth `z`.
     #[inline]
     pub fn visibility_tolerance(&self, z: f64) -> f64 {
@@ -88,5 +106,22 @@ mod tests {
             .unwrap_or_default();
         assert_eq!((p.erode_kernel, p.chamfer_threshold, p.sor_std_ratio), (5, 0.2, 1.0));
         assert!((p.visibility_tolerance(2.0) - 0.11).abs() < 1e-12);
+    }
+
+    #[test]
+    fn erosion_kernel_scales_with_mask_width() {
+        let p = GeometryParams::default();
+        assert_eq!(p.erode_kernel_for(1296), 15);
+        assert_eq!(p.erode_kernel_for(640), 7);
+        // radius 7 * 320 / 1296 = 1.73 -> 2 -> side 5; 7 * 100 / 1296 = 0.54 -> 1 -> 3.
+        assert_eq!(p.erode_kernel_for(320), 5);
+        assert_eq!(p.erode_kernel_for(100), 3);
+        assert_eq!(p.erode_kernel_for(50), 1);
+        assert_eq!(p.erode_kernel_for(2592), 29);
+        let fixed = GeometryParams {
+            erode_reference_width: 0,
+            ..GeometryParams::default()
+        };
+        assert_eq!(fixed.erode_kernel_for(320), 15);
     }
 }
