@@ -13,8 +13,10 @@ const H: u32 = 240;
 /// Paper parameters with the erosion scaled to a 320 px wide image (15 px at 1296 px
 /// removes ~7 px; here 2 px, i.e. 1.5 depth pixels, enough for one flying-pixel band).
 fn params() -> GeometryParams {
+    // A 5x5 kernel for these 320-px frames, exactly (no width scaling on top).
     GeometryParams {
         erode_kernel: 5,
+        erode_reference_width: 0,
         ..GeometryParams::default()
     }
 }
