@@ -7,7 +7,7 @@
 //! a 1296x968 run).
 
 #[allow(dead_code)]
-#[path = "../tests/agent/fake_vlm.rs"]
+#[path = "../tests/api/fake_vlm.rs"]
 mod fake_vlm;
 #[allow(dead_code)]
 #[path = "../tests/api/helpers.rs"]

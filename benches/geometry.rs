@@ -4,7 +4,7 @@
 //! * `ensemble_7_views`: view finding over 11 frames, back-projection of the 6 best views'
 //!   masks, chamfer filter, union, outlier removal, box. Target < 100 ms.
 
-#[path = "../tests/geometry_scene/mod.rs"]
+#[path = "../tests/suite/geometry_scene.rs"]
 mod geometry_scene;
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};

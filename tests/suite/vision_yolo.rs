@@ -1,7 +1,7 @@
 //! YOLO adapter on a same-signature fixture (tests/fixtures/vision/yolo-signature.onnx, built
 //! by scripts/make_vision_fixtures.py): letterbox values and box mapping checked numerically.
 
-mod vision_support;
+use crate::vision_support;
 
 use grounder::vision::yolo::letterbox;
 use grounder::vision::{build_detector, DetectInput, Detection, VisionConfig};

@@ -2,7 +2,7 @@
 //! its best view, the fused box must reach IoU >= 0.5 for >= 90 % of objects larger than
 //! 20 cm, and beat the single-view box on average.
 
-mod geometry_scene;
+use crate::geometry_scene;
 
 use geometry_scene::{render_scene, Scene};
 use grounder::geometry::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame, GeometryParams};

@@ -246,7 +246,7 @@ fn img_px(img: &RgbImage, x: u32, y: u32) -> [u8; 3] {
 }
 
 /// Writes `docs/stitch-example.png` (all stitched images of 40 synthetic frames, L = 6) for
-/// a look by eye. Run with `GROUNDER_WRITE_DOCS=1 cargo test --test stitch_render -- --ignored`.
+/// a look by eye. Run with `GROUNDER_WRITE_DOCS=1 cargo test --test suite stitch_render -- --ignored`.
 #[test]
 #[ignore]
 fn write_contact_sheet() {

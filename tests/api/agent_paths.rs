@@ -2,7 +2,7 @@
 //! trace steps.
 
 use crate::fake_vlm::{images_in, last_message, text_of, Reply};
-use crate::fixture::*;
+use crate::agent_fixture::*;
 use grounder::vlm::prompts::{InstanceInput, Prompts, ReplyKind};
 use serde_json::Value;
 use std::time::{Duration, Instant};

@@ -1,6 +1,6 @@
 //! The real CenterNet model on real photos, plus load-time error reporting.
 
-mod vision_support;
+use crate::vision_support;
 
 use grounder::vision::{build_detector, DetectInput, VisionConfig};
 use vision_support::{iou, repo_path, require_runtime};

@@ -1,7 +1,7 @@
 //! SAM adapter on same-signature fixtures (encoder + decoder built by
 //! scripts/make_vision_fixtures.py): preprocessing and box→mask mapping checked numerically.
 
-mod vision_support;
+use crate::vision_support;
 
 use grounder::geometry::camera::{DepthMap, FrameCamera, Intrinsics};
 use grounder::geometry::mask::Mask;

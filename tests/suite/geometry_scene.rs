@@ -2,7 +2,7 @@
 //! oriented boxes, ray-cast into colour-resolution instance masks and lower-resolution
 //! depth maps with realistic sensor faults (noise growing with distance, mm quantisation,
 //! holes, dropped grazing surfaces, flying pixels at depth edges) and jittered poses.
-//! Shared by tests/geometry_synthetic.rs and benches/geometry.rs (`#[path]` include).
+//! Shared by tests/suite/geometry_synthetic.rs and benches/geometry.rs (`#[path]` include).
 #![allow(dead_code)]
 
 use grounder::geometry::camera::look_at_pose;
