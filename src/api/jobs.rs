@@ -4,6 +4,7 @@ use axum::extract::{Path, Query, State};
 use axum::http::{header, StatusCode};
 use axum::response::IntoResponse;
 use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
 use serde_json::Value;
 
 use super::error::Json;
@@ -38,11 +39,11 @@ pub struct Job {
     /// Steps of the pipeline in order (omitted in lists).
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Vec<Object>>)]
-    pub trace: Option<Vec<Value>>,
+    pub trace: Option<Box<RawValue>>,
 }
 
 impl Job {
-    fn from_record(r: JobRecord, trace: Option<Vec<Value>>) -> Self {
+    fn from_record(r: JobRecord, trace: Option<Box<RawValue>>) -> Self {
         Job {
             id: r.id,
             scene_id: r.scene_id,
@@ -76,6 +77,10 @@ pub struct ListParams {
     pub cursor: Option<String>,
 }
 
+fn empty_trace() -> Box<RawValue> {
+    RawValue::from_string("[]".to_owned()).unwrap_or_else(|_| unreachable!("\"[]\" is valid JSON"))
+}
+
 const MAX_QUERY_CHARS: usize = 2000;
 
 /// Create a grounding job (it waits queued while its scene is still indexing).
@@ -99,15 +104,14 @@ pub async fn create(State(state): State<AppState>, Json(req): Json<CreateJob>) -
     let id = uuid::Uuid::now_v7().to_string();
     let job = state.store.create_job(&id, &scene.id, query).await?;
     state.jobs.wake();
-    Ok((StatusCode::ACCEPTED, [(header::LOCATION, format!("/v1/jobs/{id}"))], axum::Json(Job::from_record(job, Some(Vec::new())))))
+    Ok((StatusCode::ACCEPTED, [(header::LOCATION, format!("/v1/jobs/{id}"))], axum::Json(Job::from_record(job, Some(empty_trace())))))
 }
 
 /// A job with its trace.
 #[utoipa::path(get, path = "/v1/jobs/{id}", tag = "jobs", params(("id" = String, Path)),
     responses((status = 200, body = Job), (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn get(State(state): State<AppState>, Path(id): Path<String>) -> Result<axum::Json<Job>, ApiError> {
-    let job = state.store.get_job(&id).await?.ok_or_else(|| ApiError::not_found("job", &id))?;
-    let trace = state.store.get_trace(&id).await?;
+    let (job, trace) = state.store.get_job_with_trace(&id).await?.ok_or_else(|| ApiError::not_found("job", &id))?;
     Ok(axum::Json(Job::from_record(job, Some(trace))))
 }
 
@@ -143,9 +147,9 @@ pub async fn cancel(State(state): State<AppState>, Path(id): Path<String>) -> Re
     if before.status.is_terminal() {
         return Err(ApiError::new(StatusCode::CONFLICT, "job_finished", format!("job {id} is already {}", before.status.as_str())));
     }
-    let after = state.store.cancel_job(&id).await?.ok_or_else(|| ApiError::not_found("job", &id))?;
+    state.store.cancel_job(&id).await?.ok_or_else(|| ApiError::not_found("job", &id))?;
     state.jobs.interrupt(&id);
-    let trace = state.store.get_trace(&id).await?;
+    let (after, trace) = state.store.get_job_with_trace(&id).await?.ok_or_else(|| ApiError::not_found("job", &id))?;
     Ok(axum::Json(Job::from_record(after, Some(trace))))
 }
 

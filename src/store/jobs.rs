@@ -1,6 +1,7 @@
 //! Job rows and their traces: the persistent queue.
 
 use serde::Serialize;
+use serde_json::value::RawValue;
 use serde_json::Value;
 use sqlx::Row;
 
@@ -215,21 +216,42 @@ impl Store {
         Ok(())
     }
 
+    /// A job's trace as one JSON array text: each stored step object with its `step` name
+    /// added (a step whose data is not an object becomes `{step, data}`). Built by SQLite, so
+    /// a poll costs one statement and the trace is never parsed on the way out.
+    const TRACE_JSON: &'static str = "(SELECT json_group_array(json(CASE \
+        WHEN json_valid(t.data) AND json_type(t.data) = 'object' THEN json_set(t.data, '$.step', t.step) \
+        WHEN json_valid(t.data) THEN json_object('step', t.step, 'data', json(t.data)) \
+        ELSE json_object('step', t.step, 'data', NULL) END) ORDER BY t.seq) \
+        FROM job_trace t WHERE t.job_id = jobs.id)";
+
+    /// A job and its trace (see [`Self::get_trace`]) in one statement: what a poll needs.
+    pub async fn get_job_with_trace(&self, id: &str) -> Result<Option<(JobRecord, Box<RawValue>)>, StoreError> {
+        let row = sqlx::query(&format!("SELECT {JOB_COLS}, {} AS trace FROM jobs WHERE id = ?", Self::TRACE_JSON))
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await?;
+        let Some(row) = row else { return Ok(None) };
+        let job = job_from_row(&row)?;
+        let text: Option<String> = row.try_get("trace")?;
+        let trace = RawValue::from_string(text.unwrap_or_else(|| "[]".into()))
+            .map_err(|e| StoreError::Corrupt(format!("trace of job {id}: {e}")))?;
+        Ok(Some((job, trace)))
+    }
+
+    /// A job's trace, parsed (same shape as in [`Self::get_job_with_trace`]).
     pub async fn get_trace(&self, job_id: &str) -> Result<Vec<Value>, StoreError> {
-        let rows = sqlx::query("SELECT step, data FROM job_trace WHERE job_id = ? ORDER BY seq").bind(job_id).fetch_all(&self.pool).await?;
-        rows.iter()
-            .map(|r| {
-                let step: String = r.try_get("step")?;
-                let data: String = r.try_get("data")?;
-                let mut v: Value = serde_json::from_str(&data).unwrap_or(Value::Null);
-                match v.as_object_mut() {
-                    Some(o) => {
-                        o.insert("step".into(), Value::String(step));
-                    }
-                    None => v = serde_json::json!({"step": step, "data": v}),
-                }
-                Ok(v)
-            })
-            .collect()
+        let row = sqlx::query(&format!("SELECT {} AS trace FROM jobs WHERE id = ?", Self::TRACE_JSON))
+            .bind(job_id)
+            .fetch_optional(&self.pool)
+            .await?;
+        let text: Option<String> = match row {
+            Some(r) => r.try_get("trace")?,
+            None => None,
+        };
+        match text {
+            None => Ok(Vec::new()),
+            Some(t) => serde_json::from_str(&t).map_err(|e| StoreError::Corrupt(format!("trace of job {job_id}: {e}"))),
+        }
     }
 }

@@ -155,3 +155,63 @@ async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
     assert_eq!((s, p["code"].as_str()), (404, Some("route_not_found")));
     app.stop().await;
 }
+
+#[tokio::test]
+async fn a_scene_with_a_running_job_cannot_be_deleted() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path().to_path_buf());
+    // Long enough to be caught running, short enough to finish if the cancel is lost.
+    cfg.pipeline = "test:delay_ms=3000".into();
+    let app = TestApp::spawn_with(cfg).await;
+    let sid = scene(&app).await;
+    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
+    let id = j["id"].as_str().unwrap().to_string();
+    let mut running = false;
+    for _ in 0..400 {
+        let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
+        if s["status"] == "running" {
+            running = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    assert!(running, "the job never started");
+
+    let r = app.client.delete(app.url(&format!("/v1/scenes/{sid}"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 409);
+    assert_eq!(r.headers()["content-type"], "application/problem+json");
+    let p: Value = r.json().await.unwrap();
+    assert_eq!((p["status"].as_u64(), p["code"].as_str()), (Some(409), Some("scene_busy")), "{p}");
+    assert!(p["detail"].as_str().unwrap().contains(&sid), "{p}");
+    // Nothing was lost: the scene, its files and the job are all still there.
+    assert_eq!(app.get_json(&format!("/v1/scenes/{sid}")).await.0, 200);
+    assert!(app.data_dir.join("scenes").join(&sid).exists());
+    assert_eq!(app.get_json(&format!("/v1/jobs/{id}")).await.1["status"], "running");
+
+    // Once the job is canceled the scene can go.
+    let r = app.client.post(app.url(&format!("/v1/jobs/{id}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let done = app.wait_job(&id, Duration::from_secs(10)).await;
+    assert_eq!(done["status"], "canceled", "{done}");
+    let r = app.client.delete(app.url(&format!("/v1/scenes/{sid}"))).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 204);
+    assert_eq!(app.get_json(&format!("/v1/scenes/{sid}")).await.0, 404);
+    app.stop().await;
+}
+
+#[tokio::test]
+async fn a_poll_returns_the_trace_in_step_order() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
+    assert_eq!(j["trace"], serde_json::json!([]), "a new job has an empty trace");
+    let done = app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10)).await;
+    let trace = done["trace"].as_array().unwrap();
+    assert_eq!(trace.len(), 2, "{done}");
+    assert_eq!((trace[0]["step"].as_str(), trace[1]["step"].as_str()), (Some("start"), Some("done")));
+    assert_eq!(trace[0]["query"], "the lamp", "step data keeps its own fields beside `step`");
+    // Lists leave traces out.
+    let (_, list) = app.get_json(&format!("/v1/jobs?scene_id={sid}")).await;
+    assert!(list["jobs"][0].get("trace").is_none(), "{list}");
+    app.stop().await;
+}
