@@ -9,8 +9,12 @@ use std::num::NonZeroUsize;
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use nalgebra::Point3;
+use rayon::prelude::*;
 
 type Tree = ImmutableKdTree<f64, u32, 3, 32>;
+
+/// Nearest-neighbour queries per parallel task: small clouds stay on one thread.
+const PAR_CHUNK: usize = 2048;
 
 fn build_tree(points: &[Point3<f64>]) -> Tree {
     let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
@@ -128,8 +132,10 @@ pub fn neighbour_mean_distances(points: &[Point3<f64>], nb_neighbors: usize) -> 
         return Vec::new();
     }
     let tree = build_tree(points);
+    // Queries are independent: split them over the cores (order and values unchanged).
     points
-        .iter()
+        .par_iter()
+        .with_min_len(PAR_CHUNK)
         .map(|p| {
             let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
             if nn.is_empty() {
@@ -154,14 +160,16 @@ pub fn remove_statistical_outliers(
 
 /// Mean over `a` of the squared distance to the nearest point of `b` (`tree` is built on `b`).
 fn directional_mean_sq(a: &[Point3<f64>], tree: &Tree) -> f64 {
-    let s: f64 = a
-        .iter()
+    let d: Vec<f64> = a
+        .par_iter()
+        .with_min_len(PAR_CHUNK)
         .map(|p| {
             tree.nearest_one::<SquaredEuclidean>(&[p.x, p.y, p.z])
                 .distance
         })
-        .sum();
-    s / a.len() as f64
+        .collect();
+    // Summed in order, so the result does not depend on how the queries were split.
+    d.iter().sum::<f64>() / a.len() as f64
 }
 
 /// Chamfer distance (m^2) as the ensemble filter uses it:
