@@ -91,13 +91,15 @@ const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, 
 
 impl Store {
     pub async fn create_job(&self, id: &str, scene_id: &str, query: &str) -> Result<JobRecord, StoreError> {
-        sqlx::query("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?)")
+        let r = sqlx::query("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?)")
             .bind(id)
             .bind(scene_id)
             .bind(query)
             .bind(now_rfc3339())
             .execute(&self.pool)
-            .await?;
+            .await;
+        self.job_cache.invalidate();
+        r?;
         self.get_job(id).await?.ok_or_else(|| StoreError::Corrupt("job vanished after insert".into()))
     }
 
@@ -124,6 +126,12 @@ impl Store {
     /// Atomically take the oldest queued job whose scene is ready; marks it running,
     /// counts the attempt and clears any trace of an earlier attempt.
     pub async fn claim_next_job(&self) -> Result<Option<JobRecord>, StoreError> {
+        let r = self.claim_next_job_tx().await;
+        self.job_cache.invalidate();
+        r
+    }
+
+    async fn claim_next_job_tx(&self) -> Result<Option<JobRecord>, StoreError> {
         let mut tx = self.pool.begin().await?;
         let row = sqlx::query(&format!(
             "UPDATE jobs SET status = 'running', attempts = attempts + 1, started_at = ?1 \
@@ -153,36 +161,47 @@ impl Store {
             .bind(now_rfc3339())
             .bind(id)
             .execute(&self.pool)
-            .await?;
-        Ok(r.rows_affected() == 1)
+            .await;
+        self.job_cache.invalidate();
+        Ok(r?.rows_affected() == 1)
     }
 
     /// Put a running job back in the queue (process shutting down); the attempt is not counted.
     pub async fn requeue_job(&self, id: &str) -> Result<(), StoreError> {
-        sqlx::query("UPDATE jobs SET status = 'queued', attempts = MAX(attempts - 1, 0), started_at = NULL WHERE id = ? AND status = 'running'")
+        let r = sqlx::query("UPDATE jobs SET status = 'queued', attempts = MAX(attempts - 1, 0), started_at = NULL WHERE id = ? AND status = 'running'")
             .bind(id)
             .execute(&self.pool)
-            .await?;
+            .await;
+        self.job_cache.invalidate();
+        r?;
         Ok(())
     }
 
     /// Cancel a job in any non-terminal state. Returns the job after the change, or None
     /// when it does not exist.
     pub async fn cancel_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        sqlx::query(
+        let r = sqlx::query(
             "UPDATE jobs SET status = 'canceled', cancel_requested = 1, finished_at = ?, \
              error = '{\"code\":\"canceled\",\"detail\":\"canceled by request\"}' WHERE id = ? AND status IN ('queued','running')",
         )
         .bind(now_rfc3339())
         .bind(id)
         .execute(&self.pool)
-        .await?;
+        .await;
+        self.job_cache.invalidate();
+        r?;
         self.get_job(id).await
     }
 
     /// At start-up: jobs left `running` by a dead process go back to the queue, or fail
     /// when they have used `max_attempts`. Returns (requeued, failed).
     pub async fn recover_jobs(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
+        let r = self.recover_jobs_sql(max_attempts).await;
+        self.job_cache.invalidate();
+        r
+    }
+
+    async fn recover_jobs_sql(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
         let failed = sqlx::query(
             "UPDATE jobs SET status = 'failed', finished_at = ?, \
              error = json_object('code','too_many_attempts','detail', 'the job was interrupted ' || attempts || ' times while running and was given up') \
@@ -207,12 +226,14 @@ impl Store {
 
     /// Append one step to a job's trace.
     pub async fn append_trace(&self, job_id: &str, step: &str, data: &Value) -> Result<(), StoreError> {
-        sqlx::query("INSERT INTO job_trace (job_id, seq, step, data) VALUES (?1, (SELECT COALESCE(MAX(seq), -1) + 1 FROM job_trace WHERE job_id = ?1), ?2, ?3)")
+        let r = sqlx::query("INSERT INTO job_trace (job_id, seq, step, data) VALUES (?1, (SELECT COALESCE(MAX(seq), -1) + 1 FROM job_trace WHERE job_id = ?1), ?2, ?3)")
             .bind(job_id)
             .bind(step)
             .bind(data.to_string())
             .execute(&self.pool)
-            .await?;
+            .await;
+        self.job_cache.invalidate();
+        r?;
         Ok(())
     }
 
@@ -227,6 +248,10 @@ impl Store {
 
     /// A job and its trace (see [`Self::get_trace`]) in one statement: what a poll needs.
     pub async fn get_job_with_trace(&self, id: &str) -> Result<Option<(JobRecord, Box<RawValue>)>, StoreError> {
+        if let Some(hit) = self.job_cache.get(id) {
+            return Ok(Some(hit));
+        }
+        let epoch = self.job_cache.epoch();
         let row = sqlx::query(&format!("SELECT {JOB_COLS}, {} AS trace FROM jobs WHERE id = ?", Self::TRACE_JSON))
             .bind(id)
             .fetch_optional(&self.pool)
@@ -236,6 +261,7 @@ impl Store {
         let text: Option<String> = row.try_get("trace")?;
         let trace = RawValue::from_string(text.unwrap_or_else(|| "[]".into()))
             .map_err(|e| StoreError::Corrupt(format!("trace of job {id}: {e}")))?;
+        self.job_cache.put(epoch, &job, &trace);
         Ok(Some((job, trace)))
     }
 

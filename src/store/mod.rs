@@ -1,5 +1,6 @@
 //! The embedded SQLite store (WAL mode, migrations from `migrations/`).
 
+pub mod cache;
 pub mod jobs;
 pub mod scenes;
 
@@ -16,6 +17,8 @@ pub use scenes::SceneRecord;
 #[derive(Debug, Clone)]
 pub struct Store {
     pub pool: SqlitePool,
+    /// Polled jobs, valid until the next job write (see [`cache`]).
+    pub(crate) job_cache: std::sync::Arc<cache::JobCache>,
 }
 
 /// Errors from the store.
@@ -43,7 +46,7 @@ impl Store {
             .map_err(|e| anyhow::anyhow!("cannot open database {}: {e}", path.display()))?;
         sqlx::migrate!("./migrations").run(&pool).await
             .map_err(|e| anyhow::anyhow!("database migration failed: {e}"))?;
-        Ok(Self { pool })
+        Ok(Self { pool, job_cache: Default::default() })
     }
 
     /// True when a trivial query succeeds.

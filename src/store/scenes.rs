@@ -145,6 +145,13 @@ impl Store {
 
     /// Delete a scene unless a job on it is queued or running; returns false when refused.
     pub async fn delete_scene_if_idle(&self, id: &str) -> Result<bool, StoreError> {
+        // Cancels and deletes the scene's jobs.
+        let r = self.delete_scene_if_idle_tx(id).await;
+        self.job_cache.invalidate();
+        r
+    }
+
+    async fn delete_scene_if_idle_tx(&self, id: &str) -> Result<bool, StoreError> {
         let mut tx = self.pool.begin().await?;
         let busy: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'")
             .bind(id)
