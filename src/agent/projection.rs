@@ -15,6 +15,7 @@ use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
 use crate::geometry::ensemble::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame};
+use crate::geometry::support::{context_points, extend_to_support};
 use crate::geometry::{Aabb, GeometryParams, Mask};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -43,6 +44,25 @@ pub fn mask_rle(m: &Mask) -> Vec<u32> {
     runs
 }
 
+/// The detection to segment in an ensemble view (the reference's rule): among `boxes`, the
+/// one holding the most reprojected anchor pixels per unit box area, provided it holds at
+/// least half of them. Containment, not overlap, so a partial anchor (an object cut by the
+/// anchor frame's border) still selects the whole object's box in a view that sees all of it.
+pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4]> {
+    if pixels.is_empty() {
+        return None;
+    }
+    boxes
+        .iter()
+        .filter_map(|b| {
+            let inside = pixels.iter().filter(|&&[x, y]| (x as f32) >= b[0] && (x as f32) < b[2] && (y as f32) >= b[1] && (y as f32) < b[3]).count();
+            let area = ((b[2] - b[0]) * (b[3] - b[1])).max(1.0);
+            (2 * inside >= pixels.len()).then_some((inside as f32 / area, *b))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, b)| b)
+}
+
 /// 2D IoU of two boxes.
 pub fn box_iou(a: [f32; 4], b: [f32; 4]) -> f32 {
     let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
@@ -53,10 +73,23 @@ pub fn box_iou(a: [f32; 4], b: [f32; 4]) -> f32 {
     if u <= 0.0 { 0.0 } else { inter / u }
 }
 
-fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox: [f32; 4], params: &GeometryParams) -> anyhow::Result<(Mask, Vec<Point3<f64>>)> {
+/// A view's segmentation: raw mask, the object's points, and the context points around it
+/// (for support completion; empty when that is off).
+struct ViewCloud {
+    mask: Mask,
+    points: Vec<Point3<f64>>,
+    context: Vec<Point3<f64>>,
+}
+
+fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox: [f32; 4], params: &GeometryParams) -> anyhow::Result<ViewCloud> {
     let mask = seg.segment(&SegmentInput { color: image, depth: &frame.depth, camera: &frame.camera }, bbox)?;
-    let pts = mask_points(&mask, &frame.camera, &frame.depth, params).map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok((mask, pts))
+    let points = mask_points(&mask, &frame.camera, &frame.depth, params).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let context = if params.support.enabled && !points.is_empty() {
+        context_points(&mask, bbox, &frame.camera, &frame.depth, &params.support).map_err(|e| anyhow::anyhow!("{e}"))?
+    } else {
+        Vec::new()
+    };
+    Ok(ViewCloud { mask, points, context })
 }
 
 /// `known` holds frames already decoded (by stitching); only the other views are decoded.
@@ -65,7 +98,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
     let (seg, params, image, bbox) = (g.segmenter.clone(), g.params.geometry.clone(), choice.image.clone(), choice.bbox);
-    let (mask, anchor_pts) = tokio::task::spawn_blocking(move || segment_points(seg.as_ref(), &anchor, &image, bbox, &params))
+    let ViewCloud { mask, points: anchor_pts, context: anchor_ctx } = tokio::task::spawn_blocking(move || segment_points(seg.as_ref(), &anchor, &image, bbox, &params))
         .await
         .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
         .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
@@ -102,14 +135,10 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
     let mut view_boxes = Vec::with_capacity(views.len());
     for v in &views {
         let best = pre.detector_class.as_ref().and_then(|c| {
-            dets.get(&v.index)?
-                .iter()
-                .filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)
-                .map(|d| (box_iou(d.bbox, v.bbox), d.bbox))
-                .filter(|(iou, _)| *iou >= 0.3)
-                .max_by(|a, b| a.0.total_cmp(&b.0))
+            let boxes: Vec<[f32; 4]> = dets.get(&v.index)?.iter().filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score).map(|d| d.bbox).collect();
+            pick_detection(&boxes, &v.pixels)
         });
-        view_boxes.push((v.index, best.map(|b| b.1).unwrap_or(v.bbox), best.is_some()));
+        view_boxes.push((v.index, best.unwrap_or(v.bbox), best.is_some()));
     }
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
     let missing: Vec<usize> = idxs.iter().copied().filter(|i| !known.contains_key(i)).collect();
@@ -121,21 +150,32 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
     }
     let views_decoded = missing.len();
     let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
-    let (fusion, single) = tokio::task::spawn_blocking(move || {
+    let (fusion, single, support) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
-        let other_pts: Vec<(usize, Vec<Point3<f64>>)> = vb
+        let clouds: Vec<(usize, ViewCloud)> = vb
             .par_iter()
             .filter_map(|(i, b, _)| {
                 let img: &Arc<RgbImage> = decoded.get(i)?;
-                segment_points(seg.as_ref(), &sc.frames[*i], img, *b, &params).ok().map(|(_, p)| (*i, p))
+                segment_points(seg.as_ref(), &sc.frames[*i], img, *b, &params).ok().map(|c| (*i, c))
             })
-            .filter(|(_, p)| !p.is_empty())
+            .filter(|(_, c)| !c.points.is_empty())
             .collect();
-        (fuse_views(&anchor_pts, &other_pts, &params), single_view_box(&anchor_pts, &params))
+        let other_pts: Vec<(usize, Vec<Point3<f64>>)> = clouds.iter().map(|(i, c)| (*i, c.points.clone())).collect();
+        let fusion = fuse_views(&anchor_pts, &other_pts, &params);
+        // Support completion sees around the anchor and every view the fusion kept.
+        let mut context = anchor_ctx;
+        for (i, c) in &clouds {
+            if fusion.views.iter().any(|v| v.index == *i && v.kept) {
+                context.extend_from_slice(&c.context);
+            }
+        }
+        let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
+        let support = fusion.aabb.map(|b| extend_to_support(&b, &context, &frames, &params));
+        (fusion, single_view_box(&anchor_pts, &params), support)
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let bbox = fusion.aabb.ok_or_else(|| JobFailure::new("projection_failed", "no points survived outlier removal"))?;
+    let (bbox, moved) = support.ok_or_else(|| JobFailure::new("projection_failed", "no points survived outlier removal"))?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
     let view_json: Vec<_> = views
         .iter()
@@ -150,7 +190,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms, "views_decoded": views_decoded}),
+        json!({"box": bbox, "fused_box": fusion.aabb, "support": moved, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms, "views_decoded": views_decoded}),
         tp,
     )
     .await;
@@ -170,6 +210,18 @@ mod tests {
         let mut m = Mask::new(3, 1);
         m.set(2, 0, true);
         assert_eq!(mask_rle(&m), vec![2, 1]);
+    }
+
+    #[test]
+    fn detection_pick_prefers_containment_per_area() {
+        // Footprint: the top strip of an object cut by the anchor frame.
+        let pixels: Vec<[u32; 2]> = (10..30).flat_map(|x| (10..14).map(move |y| [x, y])).collect();
+        let whole = [8.0, 8.0, 32.0, 60.0]; // the whole object: holds all, IoU with the strip < 0.3
+        let neighbour = [28.0, 8.0, 50.0, 30.0]; // holds a corner only
+        let huge = [0.0, 0.0, 200.0, 200.0]; // holds all, but per area it loses
+        assert_eq!(pick_detection(&[neighbour, huge, whole], &pixels), Some(whole));
+        assert_eq!(pick_detection(&[neighbour], &pixels), None);
+        assert_eq!(pick_detection(&[whole], &[]), None);
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! Pipeline used by the agent (paper Sec. 3.4, with reprojection instead of image matching):
 //! [`mask_points`] (erode + largest components + back-project) on the anchor view →
 //! [`find_views`] over the other frames → the agent segments each returned view →
-//! [`mask_points`] per view → [`fuse_views`] (chamfer filter, union, outlier removal, AABB).
+//! [`mask_points`] per view → [`fuse_views`] (chamfer filter, union, outlier removal, AABB) → [`extend_to_support`]
+//! (faces moved through unseen space onto the floor or wall the object rests on; ours).
 
 pub mod boxes;
 pub mod camera;
@@ -13,6 +14,7 @@ pub mod mask;
 pub mod morph;
 pub mod params;
 pub mod projection;
+pub mod support;
 
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
@@ -24,8 +26,9 @@ pub use ensemble::{
     ViewCandidate, ViewDecision,
 };
 pub use mask::Mask;
-pub use morph::{erode_square, keep_largest_components, postprocess_mask};
+pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
+pub use support::{context_points, extend_to_support, SupportExtension, SupportParams};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,
 };

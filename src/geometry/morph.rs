@@ -34,6 +34,20 @@ pub fn erode_square(mask: &Mask, kernel: u32) -> Mask {
     }
 }
 
+/// Dilate with a `kernel` x `kernel` all-ones square (odd sizes; 0 and 1 return the mask).
+pub fn dilate_square(mask: &Mask, kernel: u32) -> Mask {
+    if kernel <= 1 || mask.count() == 0 {
+        return mask.clone();
+    }
+    let radius = (kernel / 2).min(254) as u8;
+    let grown = imageproc::morphology::dilate(&to_gray(mask), Norm::LInf, radius);
+    Mask {
+        width: mask.width,
+        height: mask.height,
+        data: grown.pixels().map(|p| p[0] > 0).collect(),
+    }
+}
+
 /// Keep the `keep` largest 8-connected components (ties: lower label first); 0 keeps all.
 pub fn keep_largest_components(mask: &Mask, keep: usize) -> Mask {
     if keep == 0 || mask.count() == 0 {

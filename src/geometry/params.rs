@@ -47,6 +47,8 @@ pub struct GeometryParams {
     /// Cost bound: when the union still has more points than this after `fusion_voxel`,
     /// the voxel is doubled until it fits (0 = no bound).
     pub max_fused_points: usize,
+    /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
+    pub support: super::SupportParams,
 }
 
 impl Default for GeometryParams {
@@ -69,6 +71,7 @@ impl Default for GeometryParams {
             chamfer_voxel: 0.02,
             fusion_voxel: 0.01,
             max_fused_points: 30_000,
+            support: super::SupportParams::default(),
         }
     }
 }

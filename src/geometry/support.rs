@@ -1,0 +1,405 @@
+//! Support completion: extend an object's box through space no camera saw, down to the
+//! planar surface it rests on or back to the wall it hangs on.
+//!
+//! Back-projected masks only hold surfaces a camera saw, and the paper's erosion removes
+//! thin parts (legs) on top. So the box of a chair stops at its seat, and the box of a
+//! picture is a zero-thickness slab at its front face, though the annotated box of either
+//! reaches the floor or the wall. Objects are held up by something: when, right beyond a
+//! face of the box, the depth *around* the object shows a dense planar layer perpendicular
+//! to that axis (floor or table top below, a wall behind), the space between the face and
+//! that layer is hidden by the object itself and belongs to it, so the face moves onto it.
+//!
+//! Searched directions: down (−z of the output frame, gravity; the ScanNet axis alignment
+//! has +z up) and the four horizontal ones. Up is never searched: nothing is held from
+//! above in our scenes, and ceilings would be wrongly joined.
+//!
+//! A candidate layer must (1) lie within `max_gap` beyond the face, (2) fall within the
+//! box's extent (plus a margin) along the other two axes, (3) spread over at least
+//! `min_spread` along both of them (so a wall seen below a picture, which is a line in a
+//! horizontal slice, is not a floor), and (4) cover at least `min_coverage` of the ring of
+//! width `margin` around the box's footprint with occupied voxels (the object hides its own
+//! footprint on the support; a slice through four chair legs lies inside the footprint and
+//! covers none of the ring). The nearest such layer wins; the face moves to its median coordinate.
+
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+use std::collections::HashSet;
+
+use super::cloud::voxel_downsample;
+use super::morph::dilate_square;
+use super::projection::{backproject_mask, project_points, BackprojectOptions, ProjectionError};
+use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
+
+/// Settings of [`extend_to_support`] and [`context_points`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SupportParams {
+    /// Off: the box is the fused points' box, as in the paper.
+    pub enabled: bool,
+    /// Largest gap (m) between the box bottom and a support below it (a chair seat whose
+    /// legs were eroded away sits ~0.45 m above the floor; a table top ~0.75 m).
+    pub max_gap_down: f64,
+    /// Largest gap (m) between a vertical face and a wall behind it that is taken as is
+    /// (a picture's or a door's thickness).
+    pub max_gap_side: f64,
+    /// Largest gap (m) to a wall behind a vertical face when no frame saw that gap empty
+    /// (a cabinet's depth, only its front ever seen). 0 disables.
+    pub max_gap_far: f64,
+    /// A far gap is refused when more than this share of its sample points is seen empty
+    /// by some frame (the measured surface there lies behind the point).
+    pub max_free: f64,
+    /// Spacing (m) of the sample points in a far gap (at most 12 per axis).
+    pub free_step: f64,
+    /// In-plane margin (m) for the far search: a wall is large, look wider around the box.
+    pub margin_far: f64,
+    /// Thickness (m) of a support layer (depth noise included).
+    pub layer: f64,
+    /// Margin (m) around the box's extent along the other two axes where support points count.
+    pub margin: f64,
+    /// Spread (m, 10th–90th percentile) a layer needs along each of the other two axes;
+    /// the smaller of this and half the box's own extent on that axis is used, but never
+    /// less than 1.5 `layer`.
+    pub min_spread: f64,
+    /// Share of the ring (width `margin`) around the box's footprint that the layer's
+    /// occupied voxels must cover.
+    pub min_coverage: f64,
+    /// Voxel (m) for the context cloud; also the unit of `min_points`.
+    pub voxel: f64,
+    /// Occupied voxels a layer needs.
+    pub min_points: usize,
+    /// The 2D context region is the detection box grown by this share of its size per side.
+    pub context_grow: f64,
+    /// Pixels (at 1296 px frame width, scaled with the frame) around the raw mask that are
+    /// left out of the context: the object's own silhouette edge and its flying pixels.
+    pub mask_clearance: u32,
+}
+
+impl Default for SupportParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_gap_down: 0.9,
+            max_gap_side: 0.1,
+            max_gap_far: 0.8,
+            max_free: 0.15,
+            free_step: 0.05,
+            margin_far: 0.3,
+            layer: 0.04,
+            margin: 0.1,
+            min_spread: 0.1,
+            min_coverage: 0.15,
+            voxel: 0.02,
+            min_points: 12,
+            context_grow: 0.5,
+            mask_clearance: 9,
+        }
+    }
+}
+
+/// One face of the box that moved onto a support.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SupportExtension {
+    /// "x", "y" or "z".
+    pub axis: &'static str,
+    /// "min" or "max" face.
+    pub side: &'static str,
+    pub from: f64,
+    pub to: f64,
+    /// Occupied voxels of the support layer.
+    pub points: usize,
+}
+
+/// Context points of one view: depth pixels inside the detection box `bbox` (grown by
+/// `context_grow`), outside the raw object mask grown by `mask_clearance`, back-projected
+/// into the output frame and voxel-downsampled.
+pub fn context_points(
+    mask: &Mask,
+    bbox: [f32; 4],
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    p: &SupportParams,
+) -> Result<Vec<Point3<f64>>, ProjectionError> {
+    let (bw, bh) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
+    let g = p.context_grow as f32;
+    let grown = [bbox[0] - g * bw, bbox[1] - g * bh, bbox[2] + g * bw, bbox[3] + g * bh];
+    let mut region = Mask::from_box(mask.width, mask.height, grown);
+    let scale = f64::from(mask.width) / 1296.0;
+    let clearance = (f64::from(p.mask_clearance) * scale).round() as u32;
+    let blocked = dilate_square(mask, 2 * clearance + 1);
+    for (r, b) in region.data.iter_mut().zip(&blocked.data) {
+        *r &= !*b;
+    }
+    let opts = BackprojectOptions { stride: 1, voxel: 0.0, one_per_depth_pixel: true };
+    let pts = backproject_mask(&region, cam, depth, opts)?;
+    Ok(voxel_downsample(&pts, p.voxel))
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+/// The nearest support layer beyond face (`axis`, `sign`) of `b`: its coordinate on `axis`
+/// and its voxel count.
+fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap: f64, margin: f64, p: &SupportParams) -> Option<(f64, usize)> {
+    let others = [(axis + 1) % 3, (axis + 2) % 3];
+    let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
+    // (gap beyond the face, point) for points in range.
+    let mut cands: Vec<(f64, &Point3<f64>)> = ctx
+        .iter()
+        .filter(|q| others.iter().all(|&o| q[o] >= b.min[o] - margin && q[o] <= b.max[o] + margin))
+        .map(|q| (sign * (q[axis] - face), q))
+        .filter(|(gap, _)| *gap >= -0.5 * p.layer && *gap <= max_gap)
+        .collect();
+    if cands.len() < p.min_points {
+        return None;
+    }
+    cands.sort_by(|a, c| a.0.total_cmp(&c.0));
+    let step = 0.25 * p.layer;
+    let mut start = -0.5 * p.layer;
+    let mut lo = 0usize;
+    while start <= max_gap {
+        while lo < cands.len() && cands[lo].0 < start {
+            lo += 1;
+        }
+        let hi = lo + cands[lo..].partition_point(|c| c.0 < start + p.layer);
+        if hi - lo >= p.min_points {
+            let layer = &cands[lo..hi];
+            if let Some(found) = accept_layer(b, layer, (axis, others), margin, p) {
+                return Some(found);
+            }
+        }
+        start += step;
+    }
+    None
+}
+
+/// Spread and coverage tests of one candidate layer; its coordinate and size when it passes.
+fn accept_layer(b: &Aabb, layer: &[(f64, &Point3<f64>)], (axis, others): (usize, [usize; 2]), margin: f64, p: &SupportParams) -> Option<(f64, usize)> {
+    for &o in &others {
+        let mut v: Vec<f64> = layer.iter().map(|(_, q)| q[o]).collect();
+        v.sort_by(f64::total_cmp);
+        let spread = percentile(&v, 0.9) - percentile(&v, 0.1);
+        // Never below 1.5 layers: a slab of zero thickness must not accept a line.
+        let need = p.min_spread.min(0.5 * (b.max[o] - b.min[o])).max(1.5 * p.layer);
+        if spread < need {
+            return None;
+        }
+    }
+    // Coverage of the ring around the box's footprint (the object hides its own footprint
+    // on a wall behind it or a floor below it; a slice through legs lies inside it).
+    let cell = |v: f64| (v / p.voxel).floor() as i64;
+    let outside = |q: &Point3<f64>| others.iter().any(|&o| q[o] < b.min[o] || q[o] > b.max[o]);
+    let cells: HashSet<(i64, i64)> = layer.iter().filter(|(_, q)| outside(q)).map(|(_, q)| (cell(q[others[0]]), cell(q[others[1]]))).collect();
+    let n = |o: usize, m: f64| ((b.max[o] - b.min[o] + 2.0 * m) / p.voxel).max(0.0);
+    let ring = n(others[0], margin) * n(others[1], margin) - n(others[0], 0.0) * n(others[1], 0.0);
+    if cells.len() < p.min_points || (cells.len() as f64) < p.min_coverage * ring {
+        return None;
+    }
+    let mut c: Vec<f64> = layer.iter().map(|(_, q)| q[axis]).collect();
+    c.sort_by(f64::total_cmp);
+    Some((percentile(&c, 0.5), cells.len()))
+}
+
+/// Share of sample points in `gap` that some frame sees empty: the point lands inside that
+/// frame and the depth measured there lies beyond it by more than the visibility tolerance
+/// of `params`. Points are a grid of at most 12 per axis, inset by a tenth of the gap's
+/// extent on each side (rays grazing the object's own edges prove nothing).
+pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> f64 {
+    let step = params.support.free_step.max(1e-3);
+    let axis_samples = |i: usize| -> Vec<f64> {
+        let (lo, hi) = (gap.min[i], gap.max[i]);
+        let inset = 0.1 * (hi - lo);
+        let n = (((hi - lo) / step).round() as usize).clamp(1, 12);
+        (0..n).map(|k| lo + inset + (hi - lo - 2.0 * inset) * (k as f64 + 0.5) / n as f64).collect()
+    };
+    let (xs, ys, zs) = (axis_samples(0), axis_samples(1), axis_samples(2));
+    let mut samples = Vec::with_capacity(xs.len() * ys.len() * zs.len());
+    for &x in &xs {
+        for &y in &ys {
+            samples.extend(zs.iter().map(|&z| Point3::new(x, y, z)));
+        }
+    }
+    let mut free = vec![false; samples.len()];
+    for (cam, depth) in views {
+        let Ok(proj) = project_points(&samples, cam, depth, params) else { continue };
+        for (f, q) in free.iter_mut().zip(&proj) {
+            if let Some(q) = q {
+                *f |= q.measured.is_some_and(|d| d > q.z + params.visibility_tolerance(q.z));
+            }
+        }
+    }
+    free.iter().filter(|&&f| f).count() as f64 / samples.len().max(1) as f64
+}
+
+/// Move each face of `b` (bottom and the four vertical ones) onto the support found beyond
+/// it in `context` (points around the object, not on it), when one is found and it lies
+/// outside the box. A vertical face moves further than `max_gap_side` (up to `max_gap_far`)
+/// only when the gap it crosses was never seen empty by the frames in `views`. Returns the
+/// new box and the faces that moved.
+pub fn extend_to_support(b: &Aabb, context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
+    let p = &params.support;
+    let mut out = *b;
+    let mut moved = Vec::new();
+    if !p.enabled || context.is_empty() {
+        return (out, moved);
+    }
+    const NAMES: [&str; 3] = ["x", "y", "z"];
+    for (axis, sign) in [(2usize, -1.0f64), (0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0)] {
+        let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
+        let near_gap = if axis == 2 { p.max_gap_down } else { p.max_gap_side };
+        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| sign * (c - face) > 0.0);
+        let found = near.or_else(|| {
+            // A wall further back, joined only when no frame saw the gap empty.
+            if axis == 2 || p.max_gap_far <= p.max_gap_side {
+                return None;
+            }
+            let (coord, n) = find_layer(b, context, (axis, sign), p.max_gap_far, p.margin_far, p)?;
+            let mut slab = *b;
+            slab.min[axis] = face.min(coord);
+            slab.max[axis] = face.max(coord);
+            (sign * (coord - face) > 0.0 && observed_free_fraction(&slab, views, params) <= p.max_free).then_some((coord, n))
+        });
+        let Some((coord, points)) = found else {
+            continue;
+        };
+        if sign < 0.0 {
+            out.min[axis] = coord;
+        } else {
+            out.max[axis] = coord;
+        }
+        moved.push(SupportExtension { axis: NAMES[axis], side: if sign < 0.0 { "min" } else { "max" }, from: face, to: coord, points });
+    }
+    (out, moved)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::camera::look_at_pose;
+    use crate::geometry::Intrinsics;
+    use nalgebra::{Matrix4, Vector3};
+
+    fn gp() -> GeometryParams {
+        GeometryParams::default()
+    }
+
+    /// Points on a grid over [a0, a1] x [b0, b1] along axes (i, j), constant `c` on axis k.
+    fn plane(k: usize, c: f64, (i, a0, a1): (usize, f64, f64), (j, b0, b1): (usize, f64, f64), step: f64) -> Vec<Point3<f64>> {
+        let mut out = Vec::new();
+        let mut a = a0;
+        while a <= a1 + 1e-9 {
+            let mut bb = b0;
+            while bb <= b1 + 1e-9 {
+                let mut p = Point3::origin();
+                p[k] = c;
+                p[i] = a;
+                p[j] = bb;
+                out.push(p);
+                bb += step;
+            }
+            a += step;
+        }
+        out
+    }
+
+    #[test]
+    fn chair_seat_extends_to_the_floor_below() {
+        // Seat box 0.45..0.9 m high; floor at z = 0 visible around and under it.
+        let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
+        let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
+        let (e, moved) = extend_to_support(&b, &floor, &[], &gp());
+        assert!((e.min[2] - 0.0).abs() < 1e-9, "{e:?}");
+        assert_eq!(moved.len(), 1);
+        assert_eq!((moved[0].axis, moved[0].side), ("z", "min"));
+        assert_eq!((e.min[0], e.max[0], e.max[2]), (1.0, 1.5, 0.9));
+    }
+
+    #[test]
+    fn picture_extends_back_to_its_wall_not_down() {
+        // Picture front face at y = 2.97 (a zero-thickness slab), wall at y = 3.0 around it.
+        let b = Aabb::new([1.0, 2.97, 1.2], [1.6, 2.97, 1.7]);
+        let mut wall = plane(1, 3.0, (0, 0.8, 1.8), (2, 1.0, 1.9), 0.02);
+        wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
+        let (e, moved) = extend_to_support(&b, &wall, &[], &gp());
+        assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?}");
+        assert_eq!(e.min, b.min, "the wall below the picture is no floor: {moved:?}");
+        assert_eq!(moved.len(), 1);
+    }
+
+    #[test]
+    fn leg_slices_far_walls_and_tiny_patches_are_not_supports() {
+        let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
+        // Four legs: vertical lines of points at the corners, no floor.
+        let mut legs = Vec::new();
+        for (x, y) in [(1.02, 1.02), (1.48, 1.02), (1.02, 1.48), (1.48, 1.48)] {
+            let mut z = 0.0;
+            while z < 0.45 {
+                for (dx, dy) in [(0.0, 0.0), (0.02, 0.0), (0.0, 0.02), (0.02, 0.02)] {
+                    legs.push(Point3::new(x + dx, y + dy, z));
+                }
+                z += 0.02;
+            }
+        }
+        let (e, moved) = extend_to_support(&b, &legs, &[], &gp());
+        assert_eq!((e, moved.len()), (b, 0));
+        // A wall 0.9 m behind the box is beyond even the far gap.
+        let wall = plane(1, 2.4, (0, 0.9, 1.6), (2, 0.4, 1.0), 0.02);
+        assert_eq!(extend_to_support(&b, &wall, &[], &gp()).0, b);
+        // A floor patch of a few points is not enough.
+        let patch = plane(2, 0.0, (0, 1.1, 1.14), (1, 1.1, 1.14), 0.02);
+        assert_eq!(extend_to_support(&b, &patch, &[], &gp()).0, b);
+        // Disabled: nothing moves.
+        let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
+        let mut off = gp();
+        off.support.enabled = false;
+        assert_eq!(extend_to_support(&b, &floor, &[], &off).0, b);
+    }
+
+    /// An 80x60 pinhole camera at `eye` looking at `target`, depth everywhere `depth_m`.
+    fn view(eye: [f64; 3], target: [f64; 3], depth_m: f64) -> (FrameCamera, DepthMap) {
+        let color = Intrinsics { fx: 100.0, fy: 100.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
+        let pose = look_at_pose(Point3::from(eye), Point3::from(target), Vector3::z());
+        let cam = FrameCamera { color, depth: None, depth_size: (80, 60), pose, align: Matrix4::identity() };
+        (cam, DepthMap::new(80, 60, vec![(depth_m * 1000.0) as u16; 80 * 60]))
+    }
+
+    #[test]
+    fn far_wall_is_joined_only_when_no_frame_saw_the_gap_empty() {
+        // A cabinet whose front (y = 1.0) is all that was seen; a wall at y = 1.5 around it.
+        let b = Aabb::new([1.0, 1.0, 0.1], [1.6, 1.02, 0.9]);
+        let mut wall = plane(1, 1.5, (0, 0.8, 1.8), (2, 0.0, 1.1), 0.02);
+        wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z < 0.9));
+        // From the front the depth stops at the cabinet face (2 m away): the gap is hidden.
+        let front = view([1.3, -1.0, 0.5], [1.3, 1.0, 0.5], 2.0);
+        // From the side, looking along +x through the gap, the depth reads 5 m.
+        let side = view([-1.0, 1.25, 0.5], [1.3, 1.25, 0.5], 5.0);
+        let hidden = [(&front.0, &front.1)];
+        let (e, moved) = extend_to_support(&b, &wall, &hidden, &gp());
+        assert!((e.max[1] - 1.5).abs() < 1e-9, "{e:?} {moved:?}");
+        let mut slab = b;
+        slab.min[1] = 1.02;
+        slab.max[1] = 1.5;
+        assert_eq!(observed_free_fraction(&slab, &hidden, &gp()), 0.0);
+        let seen = [(&front.0, &front.1), (&side.0, &side.1)];
+        assert!(observed_free_fraction(&slab, &seen, &gp()) > 0.9);
+        assert_eq!(extend_to_support(&b, &wall, &seen, &gp()).0, b);
+        // With the far gap off, the front view alone moves nothing either.
+        let mut near_only = gp();
+        near_only.support.max_gap_far = 0.0;
+        assert_eq!(extend_to_support(&b, &wall, &hidden, &near_only).0, b);
+    }
+
+    #[test]
+    fn nearest_support_wins_and_a_support_inside_the_box_changes_nothing() {
+        // A lamp on a nightstand top (z = 0.6) above the floor (z = 0).
+        let b = Aabb::new([1.1, 1.1, 0.62], [1.3, 1.3, 1.1]);
+        let mut ctx = plane(2, 0.6, (0, 0.95, 1.45), (1, 0.95, 1.45), 0.02);
+        ctx.extend(plane(2, 0.0, (0, 0.9, 1.5), (1, 0.9, 1.5), 0.02));
+        let (e, _) = extend_to_support(&b, &ctx, &[], &gp());
+        assert!((e.min[2] - 0.6).abs() < 1e-9, "{e:?}");
+        // Box bottom already below the table top (noise): no move upwards.
+        let b2 = Aabb::new([1.1, 1.1, 0.59], [1.3, 1.3, 1.1]);
+        assert_eq!(extend_to_support(&b2, &ctx, &[], &gp()).0, b2);
+    }
+}
