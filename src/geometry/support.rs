@@ -107,6 +107,8 @@ pub struct SupportExtension {
     pub to: f64,
     /// Occupied voxels of the support layer.
     pub points: usize,
+    /// For a far wall: share of the crossed gap's sample points some frame saw empty.
+    pub seen_empty: Option<f64>,
 }
 
 /// Context points of one view: depth pixels inside the detection box `bbox` (grown by
@@ -248,7 +250,7 @@ pub fn extend_to_support(b: &Aabb, context: &[Point3<f64>], views: &[(&FrameCame
     for (axis, sign) in [(2usize, -1.0f64), (0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0)] {
         let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
         let near_gap = if axis == 2 { p.max_gap_down } else { p.max_gap_side };
-        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| sign * (c - face) > 0.0);
+        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| sign * (c - face) > 0.0).map(|(c, n)| (c, n, None));
         let found = near.or_else(|| {
             // A wall further back, joined only when no frame saw the gap empty.
             if axis == 2 || p.max_gap_far <= p.max_gap_side {
@@ -258,9 +260,13 @@ pub fn extend_to_support(b: &Aabb, context: &[Point3<f64>], views: &[(&FrameCame
             let mut slab = *b;
             slab.min[axis] = face.min(coord);
             slab.max[axis] = face.max(coord);
-            (sign * (coord - face) > 0.0 && observed_free_fraction(&slab, views, params) <= p.max_free).then_some((coord, n))
+            if sign * (coord - face) <= 0.0 {
+                return None;
+            }
+            let free = observed_free_fraction(&slab, views, params);
+            (free <= p.max_free).then_some((coord, n, Some(free)))
         });
-        let Some((coord, points)) = found else {
+        let Some((coord, points, seen_empty)) = found else {
             continue;
         };
         if sign < 0.0 {
@@ -268,7 +274,7 @@ pub fn extend_to_support(b: &Aabb, context: &[Point3<f64>], views: &[(&FrameCame
         } else {
             out.max[axis] = coord;
         }
-        moved.push(SupportExtension { axis: NAMES[axis], side: if sign < 0.0 { "min" } else { "max" }, from: face, to: coord, points });
+        moved.push(SupportExtension { axis: NAMES[axis], side: if sign < 0.0 { "min" } else { "max" }, from: face, to: coord, points, seen_empty });
     }
     (out, moved)
 }
