@@ -7,6 +7,8 @@ COPY migrations migrations
 COPY prompts prompts
 COPY assets assets
 COPY models models
+# Cargo.toml declares [[bench]] targets: their sources must exist for the manifest to load.
+COPY benches benches
 RUN cargo build --release --locked --bin grounder
 
 # The ONNX Runtime library comes from the onnxruntime Python wheel (one file is kept).
