@@ -15,7 +15,7 @@ use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
 use crate::geometry::ensemble::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame};
-use crate::geometry::support::{context_points, extend_to_support};
+use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{Aabb, GeometryParams, Mask};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -170,7 +170,8 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
             }
         }
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
-        let support = fusion.aabb.map(|b| extend_to_support(&b, &context, &frames, &params));
+        let bulk = median_point(&anchor_pts).unwrap_or_default();
+        let support = fusion.aabb.map(|b| extend_to_support(&b, bulk, &context, &frames, &params));
         (fusion, single_view_box(&anchor_pts, &params), support)
     })
     .await

@@ -28,7 +28,7 @@ pub use ensemble::{
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
-pub use support::{context_points, extend_to_support, SupportExtension, SupportParams};
+pub use support::{context_points, extend_to_support, median_point, SupportExtension, SupportParams};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,
 };

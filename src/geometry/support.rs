@@ -13,8 +13,11 @@
 //! has +z up) and the four horizontal ones. Up is never searched: nothing is held from
 //! above in our scenes, and ceilings would be wrongly joined.
 //!
-//! A candidate layer must (1) lie within `max_gap` beyond the face, (2) fall within the
-//! box's extent (plus a margin) along the other two axes, (3) spread over at least
+//! A candidate layer must (1) lie within `max_gap` beyond the face (or `max_inside` within
+//! it: depth noise spreads a picture's points behind its wall, and the face is then pulled
+//! back onto the wall), (2) fall in the ring of width `margin` around the box's footprint
+//! along the other two axes (inside the footprint the object hides its support, and points
+//! there may be the object itself), (3) spread over at least
 //! `min_spread` along both of them (so a wall seen below a picture, which is a line in a
 //! horizontal slice, is not a floor), and (4) cover at least `min_coverage` of the ring of
 //! width `margin` around the box's footprint with occupied voxels (the object hides its own
@@ -54,6 +57,10 @@ pub struct SupportParams {
     pub margin_far: f64,
     /// Thickness (m) of a support layer (depth noise included).
     pub layer: f64,
+    /// How far (m) inside the box a support may lie: depth noise puts part of an object's
+    /// cloud behind the wall it hangs on or below the floor it stands on, and an object
+    /// does not go through its support, so the face is pulled back onto it.
+    pub max_inside: f64,
     /// Margin (m) around the box's extent along the other two axes where support points count.
     pub margin: f64,
     /// Spread (m, 10th–90th percentile) a layer needs along each of the other two axes;
@@ -85,6 +92,7 @@ impl Default for SupportParams {
             free_step: 0.05,
             margin_far: 0.3,
             layer: 0.04,
+            max_inside: 0.08,
             margin: 0.1,
             min_spread: 0.1,
             min_coverage: 0.15,
@@ -147,18 +155,19 @@ fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap
     let others = [(axis + 1) % 3, (axis + 2) % 3];
     let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
     // (gap beyond the face, point) for points in range.
-    let mut cands: Vec<(f64, &Point3<f64>)> = ctx
-        .iter()
-        .filter(|q| others.iter().all(|&o| q[o] >= b.min[o] - margin && q[o] <= b.max[o] + margin))
-        .map(|q| (sign * (q[axis] - face), q))
-        .filter(|(gap, _)| *gap >= -0.5 * p.layer && *gap <= max_gap)
-        .collect();
+    // Only the ring around the footprint: inside it the object hides its support, and any
+    // point there may be the object itself (legs, an unsegmented part).
+    let in_ring = |q: &Point3<f64>| {
+        others.iter().all(|&o| q[o] >= b.min[o] - margin && q[o] <= b.max[o] + margin) && others.iter().any(|&o| q[o] < b.min[o] || q[o] > b.max[o])
+    };
+    let min_gap = -p.max_inside.max(0.5 * p.layer);
+    let mut cands: Vec<(f64, &Point3<f64>)> = ctx.iter().filter(|q| in_ring(q)).map(|q| (sign * (q[axis] - face), q)).filter(|(gap, _)| *gap >= min_gap && *gap <= max_gap).collect();
     if cands.len() < p.min_points {
         return None;
     }
     cands.sort_by(|a, c| a.0.total_cmp(&c.0));
     let step = 0.25 * p.layer;
-    let mut start = -0.5 * p.layer;
+    let mut start = min_gap;
     let mut lo = 0usize;
     while start <= max_gap {
         while lo < cands.len() && cands[lo].0 < start {
@@ -167,8 +176,19 @@ fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap
         let hi = lo + cands[lo..].partition_point(|c| c.0 < start + p.layer);
         if hi - lo >= p.min_points {
             let layer = &cands[lo..hi];
-            if let Some(found) = accept_layer(b, layer, (axis, others), margin, p) {
-                return Some(found);
+            if let Some((coord, n)) = accept_layer(b, layer, (axis, others), margin, p) {
+                // The first window to qualify holds the near fringe of a noisy surface:
+                // re-centre on the median of the points within one layer of it, twice.
+                let mut c = coord;
+                for _ in 0..2 {
+                    let mut v: Vec<f64> = cands.iter().map(|(_, q)| q[axis]).filter(|x| (x - c).abs() <= p.layer).collect();
+                    if v.is_empty() {
+                        break;
+                    }
+                    v.sort_by(f64::total_cmp);
+                    c = percentile(&v, 0.5);
+                }
+                return Some((c, n));
             }
         }
         start += step;
@@ -191,8 +211,7 @@ fn accept_layer(b: &Aabb, layer: &[(f64, &Point3<f64>)], (axis, others): (usize,
     // Coverage of the ring around the box's footprint (the object hides its own footprint
     // on a wall behind it or a floor below it; a slice through legs lies inside it).
     let cell = |v: f64| (v / p.voxel).floor() as i64;
-    let outside = |q: &Point3<f64>| others.iter().any(|&o| q[o] < b.min[o] || q[o] > b.max[o]);
-    let cells: HashSet<(i64, i64)> = layer.iter().filter(|(_, q)| outside(q)).map(|(_, q)| (cell(q[others[0]]), cell(q[others[1]]))).collect();
+    let cells: HashSet<(i64, i64)> = layer.iter().map(|(_, q)| (cell(q[others[0]]), cell(q[others[1]]))).collect();
     let n = |o: usize, m: f64| ((b.max[o] - b.min[o] + 2.0 * m) / p.voxel).max(0.0);
     let ring = n(others[0], margin) * n(others[1], margin) - n(others[0], 0.0) * n(others[1], 0.0);
     if cells.len() < p.min_points || (cells.len() as f64) < p.min_coverage * ring {
@@ -201,6 +220,18 @@ fn accept_layer(b: &Aabb, layer: &[(f64, &Point3<f64>)], (axis, others): (usize,
     let mut c: Vec<f64> = layer.iter().map(|(_, q)| q[axis]).collect();
     c.sort_by(f64::total_cmp);
     Some((percentile(&c, 0.5), cells.len()))
+}
+
+/// Per-axis median of `points` (robust to noise, unlike the box centre); `None` when empty.
+pub fn median_point(points: &[Point3<f64>]) -> Option<[f64; 3]> {
+    if points.is_empty() {
+        return None;
+    }
+    Some([0, 1, 2].map(|i| {
+        let mut v: Vec<f64> = points.iter().map(|p| p[i]).collect();
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    }))
 }
 
 /// Share of sample points in `gap` that some frame sees empty: the point lands inside that
@@ -235,11 +266,14 @@ pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], p
 }
 
 /// Move each face of `b` (bottom and the four vertical ones) onto the support found beyond
-/// it in `context` (points around the object, not on it), when one is found and it lies
-/// outside the box. A vertical face moves further than `max_gap_side` (up to `max_gap_far`)
+/// it in `context` (points around the object, not on it), or pull it back onto a support
+/// up to `max_inside` within the box (noise behind a wall). A support must lie on the
+/// face's side of `bulk` (the object's per-axis median point, see [`median_point`]): the
+/// wall behind a thin picture is inside its noisy box, and only the back face may move
+/// onto it. A vertical face moves further than `max_gap_side` (up to `max_gap_far`)
 /// only when the gap it crosses was never seen empty by the frames in `views`. Returns the
 /// new box and the faces that moved.
-pub fn extend_to_support(b: &Aabb, context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
+pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
     let p = &params.support;
     let mut out = *b;
     let mut moved = Vec::new();
@@ -250,7 +284,8 @@ pub fn extend_to_support(b: &Aabb, context: &[Point3<f64>], views: &[(&FrameCame
     for (axis, sign) in [(2usize, -1.0f64), (0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0)] {
         let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
         let near_gap = if axis == 2 { p.max_gap_down } else { p.max_gap_side };
-        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| sign * (c - face) > 0.0).map(|(c, n)| (c, n, None));
+        // A near support moves the face out onto it, or back onto it from inside the box.
+        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| (c - face).abs() > 1e-9 && sign * (c - bulk[axis]) > 0.0).map(|(c, n)| (c, n, None));
         let found = near.or_else(|| {
             // A wall further back, joined only when no frame saw the gap empty.
             if axis == 2 || p.max_gap_far <= p.max_gap_side {
@@ -314,7 +349,7 @@ mod tests {
         // Seat box 0.45..0.9 m high; floor at z = 0 visible around and under it.
         let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
         let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
-        let (e, moved) = extend_to_support(&b, &floor, &[], &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &floor, &[], &gp());
         assert!((e.min[2] - 0.0).abs() < 1e-9, "{e:?}");
         assert_eq!(moved.len(), 1);
         assert_eq!((moved[0].axis, moved[0].side), ("z", "min"));
@@ -327,7 +362,7 @@ mod tests {
         let b = Aabb::new([1.0, 2.97, 1.2], [1.6, 2.97, 1.7]);
         let mut wall = plane(1, 3.0, (0, 0.8, 1.8), (2, 1.0, 1.9), 0.02);
         wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
-        let (e, moved) = extend_to_support(&b, &wall, &[], &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &wall, &[], &gp());
         assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?}");
         assert_eq!(e.min, b.min, "the wall below the picture is no floor: {moved:?}");
         assert_eq!(moved.len(), 1);
@@ -347,19 +382,19 @@ mod tests {
                 z += 0.02;
             }
         }
-        let (e, moved) = extend_to_support(&b, &legs, &[], &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &legs, &[], &gp());
         assert_eq!((e, moved.len()), (b, 0));
         // A wall 0.9 m behind the box is beyond even the far gap.
         let wall = plane(1, 2.4, (0, 0.9, 1.6), (2, 0.4, 1.0), 0.02);
-        assert_eq!(extend_to_support(&b, &wall, &[], &gp()).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &wall, &[], &gp()).0, b);
         // A floor patch of a few points is not enough.
         let patch = plane(2, 0.0, (0, 1.1, 1.14), (1, 1.1, 1.14), 0.02);
-        assert_eq!(extend_to_support(&b, &patch, &[], &gp()).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &patch, &[], &gp()).0, b);
         // Disabled: nothing moves.
         let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
         let mut off = gp();
         off.support.enabled = false;
-        assert_eq!(extend_to_support(&b, &floor, &[], &off).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &floor, &[], &off).0, b);
     }
 
     /// An 80x60 pinhole camera at `eye` looking at `target`, depth everywhere `depth_m`.
@@ -381,7 +416,7 @@ mod tests {
         // From the side, looking along +x through the gap, the depth reads 5 m.
         let side = view([-1.0, 1.25, 0.5], [1.3, 1.25, 0.5], 5.0);
         let hidden = [(&front.0, &front.1)];
-        let (e, moved) = extend_to_support(&b, &wall, &hidden, &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &wall, &hidden, &gp());
         assert!((e.max[1] - 1.5).abs() < 1e-9, "{e:?} {moved:?}");
         let mut slab = b;
         slab.min[1] = 1.02;
@@ -389,11 +424,11 @@ mod tests {
         assert_eq!(observed_free_fraction(&slab, &hidden, &gp()), 0.0);
         let seen = [(&front.0, &front.1), (&side.0, &side.1)];
         assert!(observed_free_fraction(&slab, &seen, &gp()) > 0.9);
-        assert_eq!(extend_to_support(&b, &wall, &seen, &gp()).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &wall, &seen, &gp()).0, b);
         // With the far gap off, the front view alone moves nothing either.
         let mut near_only = gp();
         near_only.support.max_gap_far = 0.0;
-        assert_eq!(extend_to_support(&b, &wall, &hidden, &near_only).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &wall, &hidden, &near_only).0, b);
     }
 
     #[test]
@@ -402,10 +437,41 @@ mod tests {
         let b = Aabb::new([1.1, 1.1, 0.62], [1.3, 1.3, 1.1]);
         let mut ctx = plane(2, 0.6, (0, 0.95, 1.45), (1, 0.95, 1.45), 0.02);
         ctx.extend(plane(2, 0.0, (0, 0.9, 1.5), (1, 0.9, 1.5), 0.02));
-        let (e, _) = extend_to_support(&b, &ctx, &[], &gp());
+        let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], &gp());
         assert!((e.min[2] - 0.6).abs() < 1e-9, "{e:?}");
-        // Box bottom already below the table top (noise): no move upwards.
-        let b2 = Aabb::new([1.1, 1.1, 0.59], [1.3, 1.3, 1.1]);
-        assert_eq!(extend_to_support(&b2, &ctx, &[], &gp()).0, b2);
+        // Box bottom 5 cm inside the nightstand (depth noise): pulled back up onto its top.
+        let b2 = Aabb::new([1.1, 1.1, 0.55], [1.3, 1.3, 1.1]);
+        let (e2, moved) = extend_to_support(&b2, b2.center(), &ctx, &[], &gp());
+        assert!((e2.min[2] - 0.6).abs() < 1e-9, "{e2:?}");
+        assert_eq!((moved.len(), moved[0].side), (1, "min"));
+    }
+
+    #[test]
+    fn a_noisy_floor_is_found_at_its_middle_not_its_fringe() {
+        // Floor points spread +-3 cm around z = 0 (deterministic pseudo-noise).
+        let mut floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
+        for (i, q) in floor.iter_mut().enumerate() {
+            q.z = 0.03 * (((i * 7919) % 61) as f64 / 30.0 - 1.0);
+        }
+        let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
+        let (e, _) = extend_to_support(&b, b.center(), &floor, &[], &gp());
+        assert!(e.min[2].abs() < 0.005, "{e:?}");
+    }
+
+    #[test]
+    fn noisy_points_behind_the_wall_are_cut_at_the_wall() {
+        // A 3 cm picture on the wall y = 3.0; noise spread its cloud from 2.93 to 3.05.
+        let b = Aabb::new([1.0, 2.93, 1.2], [1.6, 3.05, 1.7]);
+        let mut wall = plane(1, 3.0, (0, 0.8, 1.8), (2, 1.0, 1.9), 0.02);
+        wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
+        // The picture's own front surface, inside the footprint, must not pass as a support.
+        wall.extend(plane(1, 2.97, (0, 1.04, 1.56), (2, 1.24, 1.66), 0.02));
+        // Bulk: the picture's front at 2.97 (the noisy cloud's median, not the box centre).
+        let bulk = [1.3, 2.97, 1.45];
+        let (e, moved) = extend_to_support(&b, bulk, &wall, &[], &gp());
+        assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?} {moved:?}");
+        assert_eq!((e.min, moved.len()), (b.min, 1));
+        assert_eq!(median_point(&[Point3::new(0.0, 5.0, 1.0), Point3::new(2.0, 1.0, 0.0), Point3::new(1.0, 3.0, 9.0)]), Some([1.0, 3.0, 1.0]));
+        assert_eq!(median_point(&[]), None);
     }
 }
