@@ -183,14 +183,25 @@ pub fn single_view_box(points: &[Point3<f64>], params: &GeometryParams) -> Optio
 
 /// Mask post-processing (erosion + largest components) then back-projection, with the
 /// stride and voxel of `params`: the per-view step before [`find_views`] / [`fuse_views`].
+///
+/// Erosion trims unreliable border pixels; when it leaves no point at all (a thin or
+/// distant object: a picture seen edge-on), the kernel is halved (15 → 7 → 3 → 1) until
+/// some point survives, since the untrimmed mask is then the only evidence there is.
 pub fn mask_points(
     mask: &Mask,
     cam: &FrameCamera,
     depth: &DepthMap,
     params: &GeometryParams,
 ) -> Result<Vec<Point3<f64>>, ProjectionError> {
-    let m = super::morph::postprocess_mask(mask, params.erode_kernel_for(mask.width), params.keep_components);
-    super::projection::backproject_mask(&m, cam, depth, params.into())
+    let mut kernel = params.erode_kernel_for(mask.width);
+    loop {
+        let m = super::morph::postprocess_mask(mask, kernel, params.keep_components);
+        let pts = super::projection::backproject_mask(&m, cam, depth, params.into())?;
+        if !pts.is_empty() || kernel <= 1 {
+            return Ok(pts);
+        }
+        kernel = (kernel / 2) | 1;
+    }
 }
 
 #[cfg(test)]
@@ -225,6 +236,39 @@ mod tests {
         assert!(b.max[0] < 0.2 && b.min[0] > -0.2, "{b:?}");
         let json = serde_json::to_string(&r).unwrap_or_default();
         assert!(json.contains("\"chamfer\""));
+    }
+
+    #[test]
+    fn erosion_that_would_delete_a_thin_mask_is_halved_until_points_survive() {
+        use crate::geometry::camera::look_at_pose;
+        use crate::geometry::Intrinsics;
+        use nalgebra::{Matrix4, Vector3};
+        let color = Intrinsics { fx: 100.0, fy: 100.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
+        let pose = look_at_pose(Point3::new(0.0, -2.0, 1.0), Point3::new(0.0, 0.0, 1.0), Vector3::z());
+        let cam = FrameCamera { color, depth: None, depth_size: (80, 60), pose, align: Matrix4::identity() };
+        let depth = DepthMap::new(80, 60, vec![2000; 80 * 60]);
+        // A 5-pixel-wide stripe: a fixed 15x15 erosion deletes it, a 3x3 one keeps its core.
+        let mut stripe = Mask::new(80, 60);
+        for y in 10..50 {
+            for x in 38..43 {
+                stripe.set(x, y, true);
+            }
+        }
+        let p = GeometryParams { erode_reference_width: 0, ..GeometryParams::default() };
+        assert_eq!(crate::geometry::postprocess_mask(&stripe, 15, 2).count(), 0);
+        let pts = mask_points(&stripe, &cam, &depth, &p).unwrap_or_default();
+        // 3x3 erosion: 3 columns x 38 rows survive.
+        assert_eq!(pts.len(), 3 * 38);
+        // A wide mask keeps the full erosion: 30x30 square eroded by 15 leaves 16x16.
+        let mut square = Mask::new(80, 60);
+        for y in 15..45 {
+            for x in 25..55 {
+                square.set(x, y, true);
+            }
+        }
+        assert_eq!(mask_points(&square, &cam, &depth, &p).map(|v| v.len()).unwrap_or(0), 16 * 16);
+        // Nothing to find: an empty mask stays empty.
+        assert!(mask_points(&Mask::new(80, 60), &cam, &depth, &p).unwrap_or_default().is_empty());
     }
 
     #[test]
