@@ -22,30 +22,26 @@ fn to_gray(mask: &Mask) -> GrayImage {
 /// foreground (so a mask touching the border is not eaten from that side, as in OpenCV).
 /// Even kernels are rounded up to the next odd size; 0 and 1 return the mask unchanged.
 pub fn erode_square(mask: &Mask, kernel: u32) -> Mask {
+    square_op(mask, kernel, imageproc::morphology::erode)
+}
+
+/// Apply a square (L-infinity) morphological operator of side `kernel` (0/1: unchanged).
+fn square_op(mask: &Mask, kernel: u32, op: fn(&GrayImage, Norm, u8) -> GrayImage) -> Mask {
     if kernel <= 1 || mask.count() == 0 {
         return mask.clone();
     }
     let radius = (kernel / 2).min(254) as u8;
-    let eroded = imageproc::morphology::erode(&to_gray(mask), Norm::LInf, radius);
+    let out = op(&to_gray(mask), Norm::LInf, radius);
     Mask {
         width: mask.width,
         height: mask.height,
-        data: eroded.pixels().map(|p| p[0] > 0).collect(),
+        data: out.pixels().map(|p| p[0] > 0).collect(),
     }
 }
 
 /// Dilate with a `kernel` x `kernel` all-ones square (odd sizes; 0 and 1 return the mask).
 pub fn dilate_square(mask: &Mask, kernel: u32) -> Mask {
-    if kernel <= 1 || mask.count() == 0 {
-        return mask.clone();
-    }
-    let radius = (kernel / 2).min(254) as u8;
-    let grown = imageproc::morphology::dilate(&to_gray(mask), Norm::LInf, radius);
-    Mask {
-        width: mask.width,
-        height: mask.height,
-        data: grown.pixels().map(|p| p[0] > 0).collect(),
-    }
+    square_op(mask, kernel, imageproc::morphology::dilate)
 }
 
 /// Keep the `keep` largest 8-connected components (ties: lower label first); 0 keeps all.
