@@ -384,3 +384,30 @@ async fn cancel_during_a_vlm_call_stops_the_job() {
     );
     assert_eq!(steps(&next, "query_analysis")[0]["outputs"]["cached"], true);
 }
+
+#[tokio::test]
+async fn a_class_no_frame_shows_falls_back_to_evenly_sampled_frames() {
+    let f = Fixture::start(vec![], 5_000).await;
+    // The oracle detector is open-vocabulary, but no cached detection is a "unicorn".
+    // (A closed-vocabulary detector takes the sibling branch, "detector cannot see this
+    // class", with the same sampling; CenterNet's mapping is tested in vision_centernet.)
+    f.vlm.script_push(vec![analysis("unicorn"), pick_image("00000"), pick_image("00000"), pick_image("00000"), pick_image("00000")]);
+    let job = f.run_job(QUERY).await;
+    assert!(job["status"] == "failed" || job["status"] == "succeeded", "{job:#}");
+    let pre = steps(&job, "preselection");
+    assert_eq!(pre.len(), 1, "{job:#}");
+    let out = &pre[0]["outputs"];
+    assert_eq!(out["detector_class"], "unicorn", "{out:#}");
+    let why = out["fallback"].as_str().unwrap_or_default();
+    assert!(why.starts_with("no frame has a \"unicorn\" detection"), "{why}");
+    // Evenly sampled usable frames: distinct, in order, at most `fallback_frames` of them.
+    let usable = pre[0]["inputs"]["usable_frames"].as_u64().unwrap_or(0) as usize;
+    let ids: Vec<u32> = out["image_ids"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().parse().unwrap()).collect();
+    let want = usable.min(grounder::agent::AgentParams::default().fallback_frames);
+    assert_eq!(ids.len(), want, "{out:#}");
+    assert!(want > 0 && ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
+    // Those frames reached the VLM as grids.
+    let reqs = f.vlm.requests();
+    assert!(reqs.len() >= 2, "query analysis and at least one grounding turn");
+    assert!(images_in(&reqs[1]["messages"][1]) >= 1);
+}
