@@ -13,34 +13,12 @@ FRAMES=${FRAMES:-100}
 COLOR_SIZE=${COLOR_SIZE:-1296x968}
 DEPTH_SIZE=${DEPTH_SIZE:-640x480}
 PORT=${PORT:-18081}
-for tool in jq curl; do
-    command -v "$tool" >/dev/null || { echo "error: $tool is required" >&2; exit 1; }
-done
-if [[ -z "${GROUNDER_BIN:-}" ]]; then
-    (cd "$ROOT" && cargo build --release --bin grounder)
-    GROUNDER_BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release/grounder
-fi
+source "$ROOT/scripts/bench-common.sh"
 [[ -n "${ORT_DYLIB_PATH:-}" ]] || export ORT_DYLIB_PATH="$ROOT/.ort/libonnxruntime.so.1.31.1"
-
-WORK=$(mktemp -d)
-SERVER=""
-cleanup() {
-    [[ -n "$SERVER" ]] && kill "$SERVER" 2>/dev/null && wait "$SERVER" 2>/dev/null
-    rm -rf "$WORK"
-}
-trap cleanup EXIT
 
 "$GROUNDER_BIN" synth --out "$WORK/synth" --seed 3 --frames "$FRAMES" --color-size "$COLOR_SIZE" \
     --depth-size "$DEPTH_SIZE" --noise realistic --tar >/dev/null
-GROUNDER_DETECTOR=centernet GROUNDER_MODEL_DIR="$ROOT/models" \
-    "$GROUNDER_BIN" serve --addr "127.0.0.1:$PORT" --data-dir "$WORK/data" >"$WORK/serve.log" 2>&1 &
-SERVER=$!
-BASE="http://127.0.0.1:$PORT"
-for _ in $(seq 200); do
-    grep -q "listening on" "$WORK/serve.log" && break
-    sleep 0.1
-done
-grep -q "listening on" "$WORK/serve.log" || { echo "error: the server did not start:" >&2; cat "$WORK/serve.log" >&2; exit 1; }
+start_serve GROUNDER_DETECTOR=centernet GROUNDER_MODEL_DIR="$ROOT/models"
 [[ $(curl -s -o /dev/null -w '%{http_code}' "$BASE/readyz") == 200 ]] || { echo "error: not ready:" >&2; curl -s "$BASE/readyz" >&2; exit 1; }
 
 TAR=$(ls "$WORK"/synth/*.tar | head -n1)

@@ -12,31 +12,10 @@ PORT=${PORT:-18080}
 DURATION=${DURATION:-10s}
 CONNECTIONS=${CONNECTIONS:-32}
 THREADS=${THREADS:-1}
-for tool in wrk jq curl; do
-    command -v "$tool" >/dev/null || { echo "error: $tool is required" >&2; exit 1; }
-done
-if [[ -z "${GROUNDER_BIN:-}" ]]; then
-    (cd "$ROOT" && cargo build --release --bin grounder)
-    GROUNDER_BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release/grounder
-fi
+command -v wrk >/dev/null || { echo "error: wrk is required" >&2; exit 1; }
+source "$ROOT/scripts/bench-common.sh"
 
-WORK=$(mktemp -d)
-SERVER=""
-cleanup() {
-    [[ -n "$SERVER" ]] && kill "$SERVER" 2>/dev/null && wait "$SERVER" 2>/dev/null
-    rm -rf "$WORK"
-}
-trap cleanup EXIT
-
-GROUNDER_PIPELINE=test:delay_ms=1 GROUNDER_DETECTOR=none \
-    "$GROUNDER_BIN" serve --addr "127.0.0.1:$PORT" --data-dir "$WORK/data" >"$WORK/serve.log" 2>&1 &
-SERVER=$!
-BASE="http://127.0.0.1:$PORT"
-for _ in $(seq 100); do
-    grep -q "listening on" "$WORK/serve.log" && break
-    sleep 0.1
-done
-grep -q "listening on" "$WORK/serve.log" || { echo "error: the server did not start:" >&2; cat "$WORK/serve.log" >&2; exit 1; }
+start_serve GROUNDER_PIPELINE=test:delay_ms=1 GROUNDER_DETECTOR=none
 
 "$GROUNDER_BIN" synth --out "$WORK/synth" --frames 4 --color-size 320x240 --depth-size 160x120 --tar >/dev/null
 SCENE=$(curl -sf --data-binary @"$WORK/synth/scene_synth_0000.tar" -H 'Content-Type: application/x-tar' "$BASE/v1/scenes" | jq -r .id)
