@@ -63,16 +63,6 @@ pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4
         .map(|(_, b)| b)
 }
 
-/// 2D IoU of two boxes.
-pub fn box_iou(a: [f32; 4], b: [f32; 4]) -> f32 {
-    let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
-    let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
-    let inter = iw * ih;
-    let area = |r: [f32; 4]| (r[2] - r[0]).max(0.0) * (r[3] - r[1]).max(0.0);
-    let u = area(a) + area(b) - inter;
-    if u <= 0.0 { 0.0 } else { inter / u }
-}
-
 /// A view's segmentation: raw mask, the object's points, and the context points around it
 /// (for support completion; empty when that is off).
 struct ViewCloud {
@@ -160,13 +150,13 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
             })
             .filter(|(_, c)| !c.points.is_empty())
             .collect();
-        let other_pts: Vec<(usize, Vec<Point3<f64>>)> = clouds.iter().map(|(i, c)| (*i, c.points.clone())).collect();
+        let (other_pts, contexts): (Vec<_>, Vec<_>) = clouds.into_iter().map(|(i, c)| ((i, c.points), (i, c.context))).unzip();
         let fusion = fuse_views(&anchor_pts, &other_pts, &params);
         // Support completion sees around the anchor and every view the fusion kept.
         let mut context = anchor_ctx;
-        for (i, c) in &clouds {
-            if fusion.views.iter().any(|v| v.index == *i && v.kept) {
-                context.extend_from_slice(&c.context);
+        for (i, c) in contexts {
+            if fusion.views.iter().any(|v| v.index == i && v.kept) {
+                context.extend(c);
             }
         }
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
@@ -223,11 +213,5 @@ mod tests {
         assert_eq!(pick_detection(&[neighbour, huge, whole], &pixels), Some(whole));
         assert_eq!(pick_detection(&[neighbour], &pixels), None);
         assert_eq!(pick_detection(&[whole], &[]), None);
-    }
-
-    #[test]
-    fn box_iou_basics() {
-        assert!((box_iou([0.0, 0.0, 2.0, 2.0], [1.0, 0.0, 3.0, 2.0]) - 1.0 / 3.0).abs() < 1e-6);
-        assert_eq!(box_iou([0.0, 0.0, 1.0, 1.0], [2.0, 2.0, 3.0, 3.0]), 0.0);
     }
 }

@@ -144,6 +144,15 @@ pub fn context_points(
     Ok(voxel_downsample(&pts, p.voxel))
 }
 
+/// Median of `v` (the upper one of an even count); `v` is reordered. Empty: 0.
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     let i = ((sorted.len() - 1) as f64 * q).round() as usize;
     sorted[i.min(sorted.len() - 1)]
@@ -185,8 +194,7 @@ fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap
                     if v.is_empty() {
                         break;
                     }
-                    v.sort_by(f64::total_cmp);
-                    c = percentile(&v, 0.5);
+                    c = median(&mut v);
                 }
                 return Some((c, n));
             }
@@ -218,8 +226,7 @@ fn accept_layer(b: &Aabb, layer: &[(f64, &Point3<f64>)], (axis, others): (usize,
         return None;
     }
     let mut c: Vec<f64> = layer.iter().map(|(_, q)| q[axis]).collect();
-    c.sort_by(f64::total_cmp);
-    Some((percentile(&c, 0.5), cells.len()))
+    Some((median(&mut c), cells.len()))
 }
 
 /// Per-axis median of `points` (robust to noise, unlike the box centre); `None` when empty.
@@ -227,11 +234,7 @@ pub fn median_point(points: &[Point3<f64>]) -> Option<[f64; 3]> {
     if points.is_empty() {
         return None;
     }
-    Some([0, 1, 2].map(|i| {
-        let mut v: Vec<f64> = points.iter().map(|p| p[i]).collect();
-        let mid = v.len() / 2;
-        *v.select_nth_unstable_by(mid, f64::total_cmp).1
-    }))
+    Some([0, 1, 2].map(|i| median(&mut points.iter().map(|p| p[i]).collect::<Vec<f64>>())))
 }
 
 /// Share of sample points in `gap` that some frame sees empty: the point lands inside that
@@ -292,12 +295,12 @@ pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], view
                 return None;
             }
             let (coord, n) = find_layer(b, context, (axis, sign), p.max_gap_far, p.margin_far, p)?;
-            let mut slab = *b;
-            slab.min[axis] = face.min(coord);
-            slab.max[axis] = face.max(coord);
             if sign * (coord - face) <= 0.0 {
                 return None;
             }
+            let mut slab = *b;
+            slab.min[axis] = face.min(coord);
+            slab.max[axis] = face.max(coord);
             let free = observed_free_fraction(&slab, views, params);
             (free <= p.max_free).then_some((coord, n, Some(free)))
         });
