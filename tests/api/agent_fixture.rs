@@ -53,11 +53,18 @@ pub fn vlm_config(base: &str, timeout_ms: u64) -> VlmConfig {
 
 impl Fixture {
     pub async fn start(replies: Vec<Reply>, timeout_ms: u64) -> Fixture {
+        Self::start_with_detector(replies, timeout_ms, "oracle").await
+    }
+
+    /// As `start`, with another detector (e.g. the closed-vocabulary "centernet", which
+    /// needs ONNX Runtime and the vendored model).
+    pub async fn start_with_detector(replies: Vec<Reply>, timeout_ms: u64, detector: &str) -> Fixture {
         let vlm = FakeVlm::start(replies).await;
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = test_config(dir.path().to_path_buf());
         cfg.pipeline = "vlm".into();
-        cfg.detector = "oracle".into();
+        cfg.detector = detector.into();
+        cfg.model_dir = Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"));
         cfg.segmenter = "depth".into();
         cfg.workers = 1;
         cfg.vlm = Some(vlm_config(&vlm.base, timeout_ms));
@@ -84,8 +91,10 @@ impl Fixture {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         let store = Store::open(dir.path()).await.unwrap();
-        let dets = store.detections(&scene_id, "oracle").await.unwrap();
-        assert!(!dets.is_empty(), "indexing cached no detections");
+        let dets = store.detections(&scene_id, detector).await.unwrap();
+        if detector == "oracle" {
+            assert!(!dets.is_empty(), "indexing cached no detections");
+        }
         Fixture {
             app,
             vlm,

@@ -411,3 +411,39 @@ async fn a_class_no_frame_shows_falls_back_to_evenly_sampled_frames() {
     assert!(reqs.len() >= 2, "query analysis and at least one grounding turn");
     assert!(images_in(&reqs[1]["messages"][1]) >= 1);
 }
+
+#[tokio::test]
+async fn a_class_the_closed_vocabulary_detector_cannot_see_falls_back_and_fails_by_name() {
+    // The real CenterNet (COCO-80) indexes the scene; a whiteboard has no COCO class.
+    let f = Fixture::start_with_detector(vec![], 5_000, "centernet").await;
+    let coco: Vec<String> = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/models/coco80.txt")).unwrap().lines().map(str::to_string).collect();
+    assert_eq!(coco.len(), 80);
+    assert!(grounder::vision::synonyms::map_to_vocabulary("whiteboard", &coco).is_none());
+    let (_, scene) = f.app.get_json(&format!("/v1/scenes/{}", f.scene_id)).await;
+    assert_eq!(scene["index"]["detector"], "centernet", "{scene:#}");
+    assert!(scene["index"]["total"].as_i64().unwrap_or(0) > 0 && scene["index"]["done"] == scene["index"]["total"], "{scene:#}");
+    f.vlm.script_push(vec![analysis("whiteboard"), pick_image("00000")]);
+    let job = f.run_job(QUERY).await;
+    // Pre-selection: no detector class, evenly sampled usable frames, said in the trace.
+    let pre = steps(&job, "preselection");
+    assert_eq!(pre.len(), 1, "{job:#}");
+    let out = &pre[0]["outputs"];
+    assert!(out["detector_class"].is_null(), "{out:#}");
+    let why = out["fallback"].as_str().unwrap_or_default();
+    assert_eq!(why, "detector cannot see this class: \"whiteboard\"");
+    let usable = pre[0]["inputs"]["usable_frames"].as_u64().unwrap_or(0) as usize;
+    let ids: Vec<u32> = out["image_ids"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().parse().unwrap()).collect();
+    let want = usable.min(grounder::agent::AgentParams::default().fallback_frames);
+    assert!(want > 0 && ids.len() == want, "{ids:?} of {usable} usable");
+    assert!(ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
+    // The frames reached the VLM; after the VLM picks an image no box can be proposed
+    // there, so the job ends with a named reason instead of guessing.
+    let reqs = f.vlm.requests();
+    assert_eq!(reqs.len(), 2, "query analysis and one grounding turn");
+    assert!(images_in(&reqs[1]["messages"][1]) >= 1);
+    assert_eq!(job["status"], "failed", "{job:#}");
+    assert_eq!(job["error"]["code"], "detector_cannot_see_class", "{:#}", job["error"]);
+    assert!(job["error"]["detail"].as_str().unwrap_or_default().contains("whiteboard"));
+    assert!(!step_names(&job).iter().any(|n| n == "detection" || n == "segmentation"));
+    assert_trace_clean(&job);
+}
