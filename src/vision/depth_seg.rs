@@ -3,11 +3,13 @@
 //! Inside the box: (1) a depth histogram, weighted towards the box centre, gives the surface
 //! modes. (2) For each strong mode from near to far, seeds at that depth in the central part
 //! of the box grow over 4-neighbours (also a little beyond the box) while the depth step
-//! stays under a noise- and distance-dependent limit. (3) Where the growth leaked onto the
+//! stays under a noise- and distance-dependent limit; when that surface runs past the box
+//! (an object against a wall), it is grown again with the seeds' colour as a second limit. (3) Where the growth leaked onto the
 //! supporting surface (floor, table top), the points within a few cm of the lowest height
-//! (gravity = the output frame's +z) are cut and the growth is redone. (4) The first mode
-//! whose surface stays mostly inside the box is the object: occluders in front and the
-//! background behind both run on past a tight box. (5) Small holes (missing depth) are closed
+//! (gravity = the output frame's +z) are cut and the growth is redone. (4) Among the surfaces
+//! that stay mostly inside the box, the one whose extent fills the box best while running
+//! least past its edges is the object: a tight box ends where the object ends, an
+//! occluder in front covers only part of it, and the background behind runs on past it. (5) Small holes (missing depth) are closed
 //! and depth-less pixels whose colour matches the region are added back.
 
 use std::collections::VecDeque;
@@ -36,6 +38,10 @@ pub struct DepthSegmenter {
     pub max_outside: f64,
     /// Upper bound on grid cells (larger boxes are subsampled).
     pub max_cells: usize,
+    /// When a surface grown on depth alone runs past the box (an object standing against a
+    /// wall, the depth step between them too small), it is grown again admitting only cells
+    /// whose colour is within this sum of absolute RGB differences of the seeds' mean.
+    pub colour_tol: f64,
 }
 
 impl Default for DepthSegmenter {
@@ -49,6 +55,7 @@ impl Default for DepthSegmenter {
             margin: 0.12,
             max_outside: 0.35,
             max_cells: 200_000,
+            colour_tol: 60.0,
         }
     }
 }
@@ -202,7 +209,8 @@ impl DepthSegmenter {
     }
 
     /// Grow from seeds at the target depth (central part of the box first).
-    fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool]) -> Vec<bool> {
+    /// With `colour`, only cells within `colour_tol` of the seeds' mean colour join.
+    fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool], colour: bool) -> Vec<bool> {
         let tol = 0.05 + 0.03 * target;
         let near =
             |i: usize| g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i];
@@ -220,6 +228,15 @@ impl DepthSegmenter {
         if seeds.is_empty() {
             seeds = (0..g.z.len()).filter(|&i| near(i)).collect();
         }
+        let mut mean = [0.0f64; 3];
+        for &i in &seeds {
+            for (m, &c) in mean.iter_mut().zip(&g.rgb[i]) {
+                *m += f64::from(c) / seeds.len() as f64;
+            }
+        }
+        let tol = if colour { self.colour_tol } else { f64::INFINITY };
+        let like = |i: usize| mean.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= tol;
+        seeds.retain(|&i| like(i));
         let mut region = vec![false; g.z.len()];
         let mut queue: VecDeque<usize> = VecDeque::new();
         for &s in &seeds {
@@ -229,7 +246,7 @@ impl DepthSegmenter {
         while let Some(i) = queue.pop_front() {
             let lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
             for j in g.neighbours(i).into_iter().flatten() {
-                if !region[j] && !blocked[j] && g.z[j] > 0.0 && (g.z[j] - g.z[i]).abs() <= lim {
+                if !region[j] && !blocked[j] && g.z[j] > 0.0 && (g.z[j] - g.z[i]).abs() <= lim && like(j) {
                     region[j] = true;
                     queue.push_back(j);
                 }
@@ -268,10 +285,24 @@ impl DepthSegmenter {
 
     /// Region for one mode, with the support removed; and its fraction outside the box.
     fn surface(&self, g: &Grid, target: f64, cell_px: f64) -> (Vec<bool>, f64) {
+        let (region, outside) = self.surface_with(g, target, cell_px, false);
+        if outside <= self.max_outside {
+            return (region, outside);
+        }
+        // Leaked past the box on depth alone: try again with colour as a second limit.
+        let (coloured, out_c) = self.surface_with(g, target, cell_px, true);
+        if out_c <= self.max_outside {
+            (coloured, out_c)
+        } else {
+            (region, outside)
+        }
+    }
+
+    fn surface_with(&self, g: &Grid, target: f64, cell_px: f64, colour: bool) -> (Vec<bool>, f64) {
         let none = vec![false; g.z.len()];
-        let mut region = self.grow(g, target, cell_px, &none);
+        let mut region = self.grow(g, target, cell_px, &none, colour);
         if let Some(cut) = self.support_cut(g, &region) {
-            let regrown = self.grow(g, target, cell_px, &cut);
+            let regrown = self.grow(g, target, cell_px, &cut, colour);
             if regrown.iter().any(|&b| b) {
                 region = regrown;
             }
@@ -288,6 +319,21 @@ impl DepthSegmenter {
                 outside as f64 / total as f64
             },
         )
+    }
+
+    /// Share of the box that the bounding rectangle of the region's in-box cells covers
+    /// (1 when the surface reaches all four box edges).
+    fn extent_fill(g: &Grid, region: &[bool]) -> f64 {
+        let mut r = [usize::MAX, usize::MAX, 0, 0];
+        for i in (0..region.len()).filter(|&i| region[i] && g.inb[i]) {
+            let (x, y) = (i % g.w, i / g.w);
+            r = [r[0].min(x), r[1].min(y), r[2].max(x + 1), r[3].max(y + 1)];
+        }
+        if r[0] >= r[2] {
+            return 0.0;
+        }
+        let [bx0, by0, bx1, by1] = g.b;
+        ((r[2] - r[0]) * (r[3] - r[1])) as f64 / ((bx1 - bx0) * (by1 - by0)).max(1) as f64
     }
 
     /// Keep the largest 4-connected component of `region`.
@@ -380,17 +426,19 @@ impl Segmenter for DepthSegmenter {
             return Ok(Mask::from_box(cw, ch, bbox));
         }
         let cell_px = g.s as f64 * input.depth.width as f64 / cw as f64;
-        let mut chosen: Option<Vec<bool>> = None;
-        let mut fallback: Option<Vec<bool>> = None;
+        // Each strong mode's surface is scored by how well it explains a tight box: its
+        // extent inside the box should fill the box (an occluder covering part of it does
+        // not) and it should stop at the box edges (a wall behind runs on past them).
+        let mut best: Option<(f64, Vec<bool>)> = None;
         for &m in modes.iter().take(4) {
             let (region, outside) = self.surface(&g, m, cell_px);
-            if outside <= self.max_outside {
-                chosen = Some(region);
-                break;
+            let fill = Self::extent_fill(&g, &region);
+            let score = fill * (1.0 - outside) + if outside <= self.max_outside { 1.0 } else { 0.0 };
+            if best.as_ref().is_none_or(|(s, _)| score > *s + 1e-9) {
+                best = Some((score, region));
             }
-            fallback.get_or_insert(region);
         }
-        let Some(region) = chosen.or(fallback) else {
+        let Some((_, region)) = best else {
             return Ok(Mask::from_box(cw, ch, bbox));
         };
         let inside: Vec<bool> = (0..region.len()).map(|i| region[i] && g.inb[i]).collect();
@@ -414,5 +462,57 @@ impl Segmenter for DepthSegmenter {
             }
         }
         Ok(mask)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::camera::look_at_pose;
+    use crate::geometry::{DepthMap, FrameCamera, Intrinsics};
+    use image::{Rgb, RgbImage};
+    use nalgebra::{Matrix4, Point3, Vector3};
+
+    const S: u32 = 80;
+
+    /// A camera looking level along +x at a wall 3.1 m away (grey). Box [30, 30, 50, 50]:
+    /// a dark bin fills its right 60 % at 3.03 m (a depth step to the wall within the growth
+    /// limit) and leans into the wall at its top; a white bed at 2.0 m covers the box's left
+    /// 40 % and a little beyond.
+    fn scene() -> (RgbImage, DepthMap, FrameCamera, Mask) {
+        let mut color = RgbImage::from_pixel(S, S, Rgb([150, 150, 150]));
+        let mut depth = vec![3100u16; (S * S) as usize];
+        let mut bin = Mask::new(S, S);
+        for y in 30..50 {
+            for x in 38..50 {
+                bin.set(x, y, true);
+                color.put_pixel(x, y, Rgb([30, 30, 30]));
+                // top rows ramp into the wall behind
+                depth[(y * S + x) as usize] = if y < 33 { 3100 - (y as u16 - 29) * 20 } else { 3030 };
+            }
+            for x in 26..38 {
+                color.put_pixel(x, y, Rgb([235, 230, 225]));
+                depth[(y * S + x) as usize] = 2000;
+            }
+        }
+        let k = Intrinsics { fx: 80.0, fy: 80.0, cx: 39.5, cy: 39.5, width: S, height: S };
+        let pose = look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z());
+        let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+        (color, DepthMap::new(S, S, depth), cam, bin)
+    }
+
+    #[test]
+    fn the_surface_that_fills_the_box_wins_over_a_nearer_occluder() {
+        let (color, depth, cam, bin) = scene();
+        let seg = DepthSegmenter::default();
+        let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [38.0, 30.0, 50.0, 50.0]).unwrap();
+        assert!(m.iou(&bin) > 0.9, "tight box: IoU {}", m.iou(&bin));
+        // The box of the visible bin plus the bed's part: the bed is nearer and stays inside.
+        let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
+        assert!(m.iou(&bin) > 0.8, "bed in front: IoU {}", m.iou(&bin));
+        // On depth alone the bin runs onto the wall and past the box, and the bed wins.
+        let depth_only = DepthSegmenter { colour_tol: f64::INFINITY, ..DepthSegmenter::default() };
+        let m = depth_only.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
+        assert!(m.iou(&bin) < 0.2, "depth only: IoU {}", m.iou(&bin));
     }
 }
