@@ -39,6 +39,9 @@ pub struct AgentParams {
     pub preselect_score: f32,
     /// Frames shown when pre-selection finds nothing (evenly sampled usable frames).
     pub fallback_frames: usize,
+    /// Share of valid depth pixels a frame's detection of the target class needs for the
+    /// frame to be offered (a box with no depth cannot become a 3D box).
+    pub min_depth_fraction: f64,
     /// VLM calls a job may make.
     pub max_vlm_calls: u32,
     /// Wall time a job may take, seconds.
@@ -55,6 +58,7 @@ impl Default for AgentParams {
             max_retries: 3,
             preselect_score: 0.2,
             fallback_frames: 48,
+            min_depth_fraction: 0.2,
             max_vlm_calls: 16,
             max_job_seconds: 600,
             stitch: StitchOptions::default(),
@@ -118,7 +122,7 @@ impl VlmGrounder {
         let pre = preselect::run(self, &ctx, &analysis).await?;
         let grids = stitching::run(self, &ctx, &pre).await?;
         let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
-        let projected = projection::run(self, &ctx, &pre, &choice, &grids.decoded).await?;
+        let projected = projection::run(self, &ctx, &analysis.target_class, &pre, &choice, &grids.decoded).await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

@@ -41,6 +41,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
         return Err(JobFailure::new("no_usable_frames", "every frame of the scene has an invalid pose"));
     }
     let class = g.detector.can_see(&analysis.target_class);
+    let mut no_depth: Vec<usize> = Vec::new();
     let (frames, fallback) = match &class {
         None => (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("detector cannot see this class: {:?}", analysis.target_class))),
         Some(c) => {
@@ -53,7 +54,24 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
             if hits.is_empty() {
                 (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("no frame has a {c:?} detection above {}", g.params.preselect_score)))
             } else {
-                (hits, None)
+                // A frame whose every detection of the class lies where the sensor read no
+                // depth (too far, glass, a dark surface) cannot give a 3D box: not offered,
+                // unless that would leave nothing.
+                let with_depth: Vec<usize> = hits
+                    .iter()
+                    .copied()
+                    .filter(|i| {
+                        let f = &ctx.scene.frames[*i];
+                        dets.get(i).is_some_and(|d| d.iter().any(|d| same_class(&d.label, c) && d.score > g.params.preselect_score && depth_fraction(f, d.bbox) >= g.params.min_depth_fraction))
+                    })
+                    .collect();
+                no_depth = hits.iter().copied().filter(|i| !with_depth.contains(i)).collect();
+                if with_depth.is_empty() {
+                    no_depth.clear();
+                    (hits, None)
+                } else {
+                    (with_depth, None)
+                }
             }
         }
     };
@@ -63,11 +81,33 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
         ctx,
         "preselection",
         json!({"target_class": analysis.target_class, "usable_frames": usable.len()}),
-        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback}),
+        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>()}),
         t,
     )
     .await;
     Ok(Preselection { frames, detector_class: class, fallback })
+}
+
+/// Share of the depth pixels under colour box `b` of frame `f` that hold a reading
+/// (sampled on a grid of at most 32 x 32).
+pub fn depth_fraction(f: &crate::scene::FrameData, b: [f32; 4]) -> f64 {
+    let (w, h) = (f.camera.color.width as f32, f.camera.color.height as f32);
+    let (x0, y0, x1, y1) = (b[0].clamp(0.0, w), b[1].clamp(0.0, h), b[2].clamp(0.0, w), b[3].clamp(0.0, h));
+    if x1 <= x0 || y1 <= y0 {
+        return 0.0;
+    }
+    const N: usize = 32;
+    let (mut seen, mut valid) = (0usize, 0usize);
+    for j in 0..N {
+        for i in 0..N {
+            let u = x0 + (x1 - x0) * (i as f32 + 0.5) / N as f32;
+            let v = y0 + (y1 - y0) * (j as f32 + 0.5) / N as f32;
+            let (du, dv) = f.camera.depth_pixel_for_color(f64::from(u), f64::from(v));
+            seen += 1;
+            valid += usize::from(f.depth.get(du, dv) > 0);
+        }
+    }
+    valid as f64 / seen as f64
 }
 
 #[cfg(test)]
@@ -80,5 +120,21 @@ mod tests {
         assert_eq!(evenly_sampled(&items, 5), vec![0, 2, 4, 6, 8]);
         assert_eq!(evenly_sampled(&items, 20), items);
         assert_eq!(evenly_sampled(&items[..3], 2), vec![0, 1]);
+    }
+
+    #[test]
+    fn depth_fraction_counts_readings_under_the_box() {
+        use crate::geometry::{DepthMap, FrameCamera, Intrinsics};
+        use nalgebra::Matrix4;
+        use std::sync::Arc;
+        // Colour 80x60, depth 40x30: the left half of the depth image has no reading.
+        let depth = DepthMap::new(40, 30, (0..40 * 30).map(|i| if i % 40 < 20 { 0 } else { 1500 }).collect());
+        let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
+        let camera = FrameCamera { color, depth: None, depth_size: (40, 30), pose: Matrix4::identity(), align: Matrix4::identity() };
+        let f = crate::scene::FrameData { idx: 0, name: "0".into(), usable: true, camera, depth: Arc::new(depth), color_path: "0.jpg".into(), instance_path: None };
+        assert_eq!(super::depth_fraction(&f, [0.0, 0.0, 38.0, 60.0]), 0.0);
+        assert_eq!(super::depth_fraction(&f, [40.0, 0.0, 80.0, 60.0]), 1.0);
+        assert!((super::depth_fraction(&f, [20.0, 10.0, 60.0, 50.0]) - 0.5).abs() < 0.05);
+        assert_eq!(super::depth_fraction(&f, [90.0, 0.0, 100.0, 10.0]), 0.0, "outside the image");
     }
 }

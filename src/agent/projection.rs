@@ -83,7 +83,7 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
 }
 
 /// `known` holds frames already decoded (by stitching); only the other views are decoded.
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: &Choice, known: &HashMap<usize, Arc<RgbImage>>) -> Result<Projected, JobFailure> {
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice, known: &HashMap<usize, Arc<RgbImage>>) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
@@ -139,6 +139,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         }
     }
     let views_decoded = missing.len();
+    let down = !g.params.geometry.support.hangs(target_class);
     let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
     let (fusion, single, support) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
@@ -161,7 +162,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         }
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
         let bulk = median_point(&anchor_pts).unwrap_or_default();
-        let support = fusion.aabb.map(|b| extend_to_support(&b, bulk, &context, &frames, &params));
+        let support = fusion.aabb.map(|b| extend_to_support(&b, bulk, &context, &frames, down, &params));
         (fusion, single_view_box(&anchor_pts, &params), support)
     })
     .await
@@ -181,7 +182,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection, choice: 
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "fused_box": fusion.aabb, "support": moved, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms, "views_decoded": views_decoded}),
+        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms, "views_decoded": views_decoded}),
         tp,
     )
     .await;

@@ -117,6 +117,9 @@ pub struct ViewDecision {
 pub struct FusionResult {
     /// Box of the fused, outlier-filtered points; `None` when nothing was left.
     pub aabb: Option<Aabb>,
+    /// Axes ("x", "y", "z") on which the points were a noisy plane and the box was narrowed
+    /// to their interquartile range (see [`flatten_noisy_planes`]).
+    pub flattened: Vec<&'static str>,
     pub anchor_points: usize,
     /// Points after union (and fusion voxel downsampling), before outlier removal.
     pub fused_points: usize,
@@ -166,14 +169,55 @@ pub fn fuse_views(
         }
     }
     let kept = remove_statistical_outliers(&fused, params.sor_neighbors, params.sor_std_ratio);
+    let (aabb, flattened) = match Aabb::from_points(&kept) {
+        Some(b) => {
+            let (b, axes) = flatten_noisy_planes(b, &kept, params.plane_iqr);
+            (Some(b), axes)
+        }
+        None => (None, Vec::new()),
+    };
     FusionResult {
-        aabb: Aabb::from_points(&kept),
+        aabb,
+        flattened,
         anchor_points: anchor.len(),
         fused_points: fused.len(),
         kept_points: kept.len(),
         fusion_voxel: voxel.max(0.0),
         views,
     }
+}
+
+/// On an axis where the points are a plane blurred by depth noise (interquartile range at
+/// most `max_iqr`, at least 4 times smaller than on both other axes, and a min–max extent
+/// within 8 of it, as a blur gives and a second surface does not: a window, a picture),
+/// the min–max extent measures the noise, not the object. There the
+/// box is narrowed to the points' interquartile range; support completion then carries
+/// the back face to the wall or floor. `max_iqr` 0 disables it.
+pub fn flatten_noisy_planes(b: Aabb, points: &[Point3<f64>], max_iqr: f64) -> (Aabb, Vec<&'static str>) {
+    const NAMES: [&str; 3] = ["x", "y", "z"];
+    let mut out = b;
+    let mut axes = Vec::new();
+    if max_iqr <= 0.0 || points.len() < 20 {
+        return (out, axes);
+    }
+    let quartiles = |a: usize| {
+        let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
+        v.sort_by(f64::total_cmp);
+        let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+        (q(0.25), q(0.75))
+    };
+    let qs = [quartiles(0), quartiles(1), quartiles(2)];
+    for a in 0..3 {
+        let iqr = qs[a].1 - qs[a].0;
+        let others = [(a + 1) % 3, (a + 2) % 3];
+        let extent = b.max[a] - b.min[a];
+        if iqr <= max_iqr && extent <= 8.0 * iqr.max(0.005) && iqr < extent && others.iter().all(|&o| qs[o].1 - qs[o].0 >= 4.0 * iqr.max(0.005)) {
+            out.min[a] = qs[a].0;
+            out.max[a] = qs[a].1;
+            axes.push(NAMES[a]);
+        }
+    }
+    (out, axes)
 }
 
 /// Single-view box: outlier removal of one cloud (fusion voxel applied first), then AABB.
@@ -207,6 +251,36 @@ pub fn mask_points(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_noisy_window_is_flattened_a_pillow_is_not() {
+        // Window face at y = 6.05, blurred by ~2.5 cm of deterministic pseudo-noise.
+        let noise = |k: usize| 0.05 * ((k as f64 * 12.9898).sin() * 43758.5453).fract().abs() - 0.025;
+        let mut window = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                window.push(Point3::new(0.7 + 0.03 * i as f64, 6.05 + noise(i * 40 + j), 1.0 + 0.03 * j as f64));
+            }
+        }
+        let b = Aabb::from_points(&window).unwrap();
+        let (f, axes) = flatten_noisy_planes(b, &window, 0.05);
+        assert_eq!(axes, vec!["y"]);
+        assert!(f.max[1] - f.min[1] < 0.6 * (b.max[1] - b.min[1]), "{f:?}");
+        assert!(f.min[1] < 6.05 && f.max[1] > 6.05);
+        assert_eq!((f.min[0], f.max[2]), (b.min[0], b.max[2]));
+        // A pillow: mostly its front face, plus its top 0.3 m deep: a second surface.
+        let mut pillow: Vec<Point3<f64>> = window.iter().map(|p| Point3::new(p.x, 4.75, p.z * 0.2)).collect();
+        for i in 0..40 {
+            for j in 0..8 {
+                pillow.push(Point3::new(0.7 + 0.03 * i as f64, 4.75 + 0.04 * j as f64, 0.44));
+            }
+        }
+        let b = Aabb::from_points(&pillow).unwrap();
+        assert_eq!(flatten_noisy_planes(b, &pillow, 0.05), (b, vec![]));
+        // Off.
+        let b = Aabb::from_points(&window).unwrap();
+        assert_eq!(flatten_noisy_planes(b, &window, 0.0), (b, vec![]));
+    }
 
     fn blob(cx: f64, n: usize) -> Vec<Point3<f64>> {
         (0..n)

@@ -79,6 +79,22 @@ pub struct SupportParams {
     /// Pixels (at 1296 px frame width, scaled with the frame) around the raw mask that are
     /// left out of the context: the object's own silhouette edge and its flying pixels.
     pub mask_clearance: u32,
+    /// Classes that hang on a wall rather than rest on something below (compared with the
+    /// query's target class, whole or by its last word): their bottom face never moves
+    /// down, since the layer below a window is a cabinet or table in front of the wall.
+    pub hanging: Vec<String>,
+}
+
+impl SupportParams {
+    /// Does an object of `class` hang on a wall (no downward completion)?
+    pub fn hangs(&self, class: &str) -> bool {
+        let c = class.trim().to_lowercase();
+        let last = c.split_whitespace().last().unwrap_or("");
+        self.hanging.iter().any(|h| {
+            let h = h.to_lowercase();
+            h == c || h == last || h.strip_suffix('s').is_some_and(|x| x == last) || format!("{h}s") == last
+        })
+    }
 }
 
 impl Default for SupportParams {
@@ -100,6 +116,7 @@ impl Default for SupportParams {
             min_points: 12,
             context_grow: 0.5,
             mask_clearance: 9,
+            hanging: ["window", "picture", "painting", "poster", "photo", "frame", "mirror", "whiteboard", "blackboard", "board", "clock", "sign"].map(String::from).to_vec(),
         }
     }
 }
@@ -274,9 +291,10 @@ pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], p
 /// face's side of `bulk` (the object's per-axis median point, see [`median_point`]): the
 /// wall behind a thin picture is inside its noisy box, and only the back face may move
 /// onto it. A vertical face moves further than `max_gap_side` (up to `max_gap_far`)
-/// only when the gap it crosses was never seen empty by the frames in `views`. Returns the
-/// new box and the faces that moved.
-pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
+/// only when the gap it crosses was never seen empty by the frames in `views`. With
+/// `down` false (an object that hangs on a wall) the bottom face stays. Returns the new box
+/// and the faces that moved.
+pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], down: bool, params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
     let p = &params.support;
     let mut out = *b;
     let mut moved = Vec::new();
@@ -285,6 +303,9 @@ pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], view
     }
     const NAMES: [&str; 3] = ["x", "y", "z"];
     for (axis, sign) in [(2usize, -1.0f64), (0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0)] {
+        if axis == 2 && !down {
+            continue;
+        }
         let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
         let near_gap = if axis == 2 { p.max_gap_down } else { p.max_gap_side };
         // A near support moves the face out onto it, or back onto it from inside the box.
@@ -352,7 +373,7 @@ mod tests {
         // Seat box 0.45..0.9 m high; floor at z = 0 visible around and under it.
         let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
         let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
-        let (e, moved) = extend_to_support(&b, b.center(), &floor, &[], &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &floor, &[], true, &gp());
         assert!((e.min[2] - 0.0).abs() < 1e-9, "{e:?}");
         assert_eq!(moved.len(), 1);
         assert_eq!((moved[0].axis, moved[0].side), ("z", "min"));
@@ -365,7 +386,7 @@ mod tests {
         let b = Aabb::new([1.0, 2.97, 1.2], [1.6, 2.97, 1.7]);
         let mut wall = plane(1, 3.0, (0, 0.8, 1.8), (2, 1.0, 1.9), 0.02);
         wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
-        let (e, moved) = extend_to_support(&b, b.center(), &wall, &[], &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &wall, &[], true, &gp());
         assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?}");
         assert_eq!(e.min, b.min, "the wall below the picture is no floor: {moved:?}");
         assert_eq!(moved.len(), 1);
@@ -385,19 +406,19 @@ mod tests {
                 z += 0.02;
             }
         }
-        let (e, moved) = extend_to_support(&b, b.center(), &legs, &[], &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &legs, &[], true, &gp());
         assert_eq!((e, moved.len()), (b, 0));
         // A wall 0.9 m behind the box is beyond even the far gap.
         let wall = plane(1, 2.4, (0, 0.9, 1.6), (2, 0.4, 1.0), 0.02);
-        assert_eq!(extend_to_support(&b, b.center(), &wall, &[], &gp()).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &wall, &[], true, &gp()).0, b);
         // A floor patch of a few points is not enough.
         let patch = plane(2, 0.0, (0, 1.1, 1.14), (1, 1.1, 1.14), 0.02);
-        assert_eq!(extend_to_support(&b, b.center(), &patch, &[], &gp()).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &patch, &[], true, &gp()).0, b);
         // Disabled: nothing moves.
         let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
         let mut off = gp();
         off.support.enabled = false;
-        assert_eq!(extend_to_support(&b, b.center(), &floor, &[], &off).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &floor, &[], true, &off).0, b);
     }
 
     /// An 80x60 pinhole camera at `eye` looking at `target`, depth everywhere `depth_m`.
@@ -419,7 +440,7 @@ mod tests {
         // From the side, looking along +x through the gap, the depth reads 5 m.
         let side = view([-1.0, 1.25, 0.5], [1.3, 1.25, 0.5], 5.0);
         let hidden = [(&front.0, &front.1)];
-        let (e, moved) = extend_to_support(&b, b.center(), &wall, &hidden, &gp());
+        let (e, moved) = extend_to_support(&b, b.center(), &wall, &hidden, true, &gp());
         assert!((e.max[1] - 1.5).abs() < 1e-9, "{e:?} {moved:?}");
         let mut slab = b;
         slab.min[1] = 1.02;
@@ -427,11 +448,11 @@ mod tests {
         assert_eq!(observed_free_fraction(&slab, &hidden, &gp()), 0.0);
         let seen = [(&front.0, &front.1), (&side.0, &side.1)];
         assert!(observed_free_fraction(&slab, &seen, &gp()) > 0.9);
-        assert_eq!(extend_to_support(&b, b.center(), &wall, &seen, &gp()).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &wall, &seen, true, &gp()).0, b);
         // With the far gap off, the front view alone moves nothing either.
         let mut near_only = gp();
         near_only.support.max_gap_far = 0.0;
-        assert_eq!(extend_to_support(&b, b.center(), &wall, &hidden, &near_only).0, b);
+        assert_eq!(extend_to_support(&b, b.center(), &wall, &hidden, true, &near_only).0, b);
     }
 
     #[test]
@@ -440,11 +461,11 @@ mod tests {
         let b = Aabb::new([1.1, 1.1, 0.62], [1.3, 1.3, 1.1]);
         let mut ctx = plane(2, 0.6, (0, 0.95, 1.45), (1, 0.95, 1.45), 0.02);
         ctx.extend(plane(2, 0.0, (0, 0.9, 1.5), (1, 0.9, 1.5), 0.02));
-        let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], &gp());
+        let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], true, &gp());
         assert!((e.min[2] - 0.6).abs() < 1e-9, "{e:?}");
         // Box bottom 5 cm inside the nightstand (depth noise): pulled back up onto its top.
         let b2 = Aabb::new([1.1, 1.1, 0.55], [1.3, 1.3, 1.1]);
-        let (e2, moved) = extend_to_support(&b2, b2.center(), &ctx, &[], &gp());
+        let (e2, moved) = extend_to_support(&b2, b2.center(), &ctx, &[], true, &gp());
         assert!((e2.min[2] - 0.6).abs() < 1e-9, "{e2:?}");
         assert_eq!((moved.len(), moved[0].side), (1, "min"));
     }
@@ -457,7 +478,7 @@ mod tests {
             q.z = 0.03 * (((i * 7919) % 61) as f64 / 30.0 - 1.0);
         }
         let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
-        let (e, _) = extend_to_support(&b, b.center(), &floor, &[], &gp());
+        let (e, _) = extend_to_support(&b, b.center(), &floor, &[], true, &gp());
         assert!(e.min[2].abs() < 0.005, "{e:?}");
     }
 
@@ -471,10 +492,25 @@ mod tests {
         wall.extend(plane(1, 2.97, (0, 1.04, 1.56), (2, 1.24, 1.66), 0.02));
         // Bulk: the picture's front at 2.97 (the noisy cloud's median, not the box centre).
         let bulk = [1.3, 2.97, 1.45];
-        let (e, moved) = extend_to_support(&b, bulk, &wall, &[], &gp());
+        let (e, moved) = extend_to_support(&b, bulk, &wall, &[], true, &gp());
         assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?} {moved:?}");
         assert_eq!((e.min, moved.len()), (b.min, 1));
         assert_eq!(median_point(&[Point3::new(0.0, 5.0, 1.0), Point3::new(2.0, 1.0, 0.0), Point3::new(1.0, 3.0, 9.0)]), Some([1.0, 3.0, 1.0]));
         assert_eq!(median_point(&[]), None);
+    }
+
+    #[test]
+    fn a_window_above_a_cabinet_does_not_move_down_onto_it() {
+        // Window 0.97..2.17 m high on the wall y = 6.1; a cabinet top at z = 0.54 in front of
+        // the wall below it, wider than the window.
+        let b = Aabb::new([0.7, 6.05, 0.97], [1.9, 6.1, 2.17]);
+        let top = plane(2, 0.54, (0, 0.5, 2.1), (1, 5.6, 6.1), 0.02);
+        let p = gp();
+        assert!(p.support.hangs("window") && p.support.hangs("Framed Pictures") && p.support.hangs("white board"));
+        assert!(!p.support.hangs("chair") && !p.support.hangs("window seat"));
+        let (moved_box, _) = extend_to_support(&b, b.center(), &top, &[], true, &p);
+        assert!((moved_box.min[2] - 0.54).abs() < 0.02, "a resting object would move: {moved_box:?}");
+        let (e, moved) = extend_to_support(&b, b.center(), &top, &[], !p.support.hangs("window"), &p);
+        assert_eq!((e, moved.len()), (b, 0));
     }
 }

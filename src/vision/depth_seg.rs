@@ -40,7 +40,7 @@ pub struct DepthSegmenter {
     pub max_cells: usize,
     /// When a surface grown on depth alone runs past the box (an object standing against a
     /// wall, the depth step between them too small), it is grown again admitting only cells
-    /// whose colour is within this sum of absolute RGB differences of the seeds' mean.
+    /// whose colour is within this sum of absolute RGB differences of the seeds' median.
     pub colour_tol: f64,
 }
 
@@ -228,14 +228,18 @@ impl DepthSegmenter {
         if seeds.is_empty() {
             seeds = (0..g.z.len()).filter(|&i| near(i)).collect();
         }
-        let mut mean = [0.0f64; 3];
-        for &i in &seeds {
-            for (m, &c) in mean.iter_mut().zip(&g.rgb[i]) {
-                *m += f64::from(c) / seeds.len() as f64;
+        // Per-channel median colour of the seeds: robust when some seeds lie on a wall
+        // at the object's depth.
+        let mut mid = [0.0f64; 3];
+        for (c, m) in mid.iter_mut().enumerate() {
+            let mut v: Vec<u8> = seeds.iter().map(|&i| g.rgb[i][c]).collect();
+            if !v.is_empty() {
+                let k = v.len() / 2;
+                *m = f64::from(*v.select_nth_unstable(k).1);
             }
         }
         let tol = if colour { self.colour_tol } else { f64::INFINITY };
-        let like = |i: usize| mean.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= tol;
+        let like = |i: usize| mid.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= tol;
         seeds.retain(|&i| like(i));
         let mut region = vec![false; g.z.len()];
         let mut queue: VecDeque<usize> = VecDeque::new();
@@ -433,7 +437,7 @@ impl Segmenter for DepthSegmenter {
         for &m in modes.iter().take(4) {
             let (region, outside) = self.surface(&g, m, cell_px);
             let fill = Self::extent_fill(&g, &region);
-            let score = fill * (1.0 - outside) + if outside <= self.max_outside { 1.0 } else { 0.0 };
+            let score = fill * (1.0 - outside) * if outside <= self.max_outside { 1.0 } else { 0.5 };
             if best.as_ref().is_none_or(|(s, _)| score > *s + 1e-9) {
                 best = Some((score, region));
             }
