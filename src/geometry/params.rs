@@ -49,7 +49,7 @@ pub struct GeometryParams {
     pub max_fused_points: usize,
     /// Interquartile range (m) below which an axis of the fused points counts as a noisy
     /// plane and the box is narrowed to it (ours; `ensemble::flatten_noisy_planes`; 0 = off,
-    /// the default: 0.05 helps windows but hurts pillows on the realistic benchmark).
+    /// the default: 0.05 left windows unchanged and hurt pillows on the realistic benchmark).
     pub plane_iqr: f64,
     /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
     pub support: super::SupportParams,
