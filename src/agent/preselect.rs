@@ -46,30 +46,22 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
         None => (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("detector cannot see this class: {:?}", analysis.target_class))),
         Some(c) => {
             let dets = ctx.store.detections(&ctx.scene.id, &g.detector_key).await.map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
-            let hits: Vec<usize> = usable
-                .iter()
-                .copied()
-                .filter(|i| dets.get(i).is_some_and(|d| d.iter().any(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)))
-                .collect();
+            let is_hit = |d: &crate::vision::Detection| same_class(&d.label, c) && d.score > g.params.preselect_score;
+            let hits: Vec<usize> = usable.iter().copied().filter(|i| dets.get(i).is_some_and(|d| d.iter().any(is_hit))).collect();
             if hits.is_empty() {
                 (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("no frame has a {c:?} detection above {}", g.params.preselect_score)))
             } else {
                 // A frame whose every detection of the class lies where the sensor read no
                 // depth (too far, glass, a dark surface) cannot give a 3D box: not offered,
                 // unless that would leave nothing.
-                let with_depth: Vec<usize> = hits
-                    .iter()
-                    .copied()
-                    .filter(|i| {
-                        let f = &ctx.scene.frames[*i];
-                        dets.get(i).is_some_and(|d| d.iter().any(|d| same_class(&d.label, c) && d.score > g.params.preselect_score && depth_fraction(f, d.bbox) >= g.params.min_depth_fraction))
-                    })
-                    .collect();
-                no_depth = hits.iter().copied().filter(|i| !with_depth.contains(i)).collect();
+                let (with_depth, without): (Vec<usize>, Vec<usize>) = hits.iter().partition(|i| {
+                    let f = &ctx.scene.frames[**i];
+                    dets.get(*i).is_some_and(|d| d.iter().any(|d| is_hit(d) && depth_fraction(f, d.bbox) >= g.params.min_depth_fraction))
+                });
                 if with_depth.is_empty() {
-                    no_depth.clear();
                     (hits, None)
                 } else {
+                    no_depth = without;
                     (with_depth, None)
                 }
             }

@@ -4,13 +4,14 @@
 //! modes. (2) For each strong mode from near to far, seeds at that depth in the central part
 //! of the box grow over 4-neighbours (also a little beyond the box) while the depth step
 //! stays under a noise- and distance-dependent limit; when that surface runs past the box
-//! (an object against a wall), it is grown again with the seeds' colour as a second limit. (3) Where the growth leaked onto the
-//! supporting surface (floor, table top), the points within a few cm of the lowest height
-//! (gravity = the output frame's +z) are cut and the growth is redone. (4) Among the surfaces
-//! that stay mostly inside the box, the one whose extent fills the box best while running
-//! least past its edges is the object: a tight box ends where the object ends, an
-//! occluder in front covers only part of it, and the background behind runs on past it. (5) Small holes (missing depth) are closed
-//! and depth-less pixels whose colour matches the region are added back.
+//! (an object against a wall), it is grown again with the seeds' colour as a second limit.
+//! (3) Where the growth leaked onto the supporting surface (floor, table top), the points
+//! within a few cm of the lowest height (gravity = the output frame's +z) are cut and the
+//! growth is redone. (4) Among the surfaces that stay mostly inside the box, the one whose
+//! extent fills the box best while running least past its edges is the object: a tight box
+//! ends where the object ends, an occluder in front covers only part of it, and the
+//! background behind runs on past it. (5) Small holes (missing depth) are closed and
+//! depth-less pixels whose colour matches the region are added back.
 
 use std::collections::VecDeque;
 
@@ -209,7 +210,7 @@ impl DepthSegmenter {
     }
 
     /// Grow from seeds at the target depth (central part of the box first).
-    /// With `colour`, only cells within `colour_tol` of the seeds' mean colour join.
+    /// With `colour`, only cells within `colour_tol` of the seeds' median colour join.
     fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool], colour: bool) -> Vec<bool> {
         let tol = 0.05 + 0.03 * target;
         let near =
@@ -228,19 +229,22 @@ impl DepthSegmenter {
         if seeds.is_empty() {
             seeds = (0..g.z.len()).filter(|&i| near(i)).collect();
         }
-        // Per-channel median colour of the seeds: robust when some seeds lie on a wall
-        // at the object's depth.
+        // Per-channel median colour of the seeds (robust when some seeds lie on a wall at
+        // the object's depth); only computed when colour limits the growth.
         let mut mid = [0.0f64; 3];
-        for (c, m) in mid.iter_mut().enumerate() {
-            let mut v: Vec<u8> = seeds.iter().map(|&i| g.rgb[i][c]).collect();
-            if !v.is_empty() {
-                let k = v.len() / 2;
-                *m = f64::from(*v.select_nth_unstable(k).1);
+        if colour {
+            for (c, m) in mid.iter_mut().enumerate() {
+                let mut v: Vec<u8> = seeds.iter().map(|&i| g.rgb[i][c]).collect();
+                if !v.is_empty() {
+                    let k = v.len() / 2;
+                    *m = f64::from(*v.select_nth_unstable(k).1);
+                }
             }
         }
-        let tol = if colour { self.colour_tol } else { f64::INFINITY };
-        let like = |i: usize| mid.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= tol;
-        seeds.retain(|&i| like(i));
+        let like = |i: usize| !colour || mid.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= self.colour_tol;
+        if colour {
+            seeds.retain(|&i| like(i));
+        }
         let mut region = vec![false; g.z.len()];
         let mut queue: VecDeque<usize> = VecDeque::new();
         for &s in &seeds {
