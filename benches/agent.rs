@@ -111,9 +111,13 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
                 extra.entry("stitching.decode").or_default().push(s["outputs"]["decode_ms"].as_f64().unwrap_or(0.0));
                 extra.entry("stitching.render").or_default().push(s["outputs"]["render_ms"].as_f64().unwrap_or(0.0));
                 extra.entry("stitching.frames").or_default().push(s["inputs"]["frames"].as_f64().unwrap_or(0.0));
+                extra.entry("stitching.from_previews").or_default().push(s["outputs"]["from_previews"].as_f64().unwrap_or(0.0));
             }
             if name == "projection" {
-                extra.entry("projection.find_views").or_default().push(s["outputs"]["find_views_ms"].as_f64().unwrap_or(0.0));
+                for (key, part) in [("projection.find_views", "find_views"), ("projection.decode", "decode"), ("projection.segment", "segment"), ("projection.fuse", "fuse"), ("projection.support", "support")] {
+                    extra.entry(key).or_default().push(s["outputs"]["timings_ms"][part].as_f64().unwrap_or(0.0));
+                }
+                extra.entry("projection.views_decoded").or_default().push(s["outputs"]["views_decoded"].as_f64().unwrap_or(0.0));
                 extra.entry("projection.candidate_views").or_default().push(s["inputs"]["candidate_views"].as_f64().unwrap_or(0.0));
             }
         }

@@ -3,8 +3,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use grounder::stitch::{
-    decode_image, encode_jpeg, load_frames, plan, render_grid, stitch_all, ResizeFilter,
-    StitchOptions,
+    decode_image, encode_jpeg, load_frames, make_preview, plan, render_grid, stitch_all,
+    stitch_with_specs, tile_scales, use_previews, ResizeFilter, StitchOptions,
 };
 use image::{Rgb, RgbImage};
 use rand::{Rng, SeedableRng};
@@ -80,7 +80,9 @@ fn bench(c: &mut Criterion) {
         let jpeg = encode_jpeg(&frames[0], 90).expect("encode");
         b.iter(|| decode_image(&jpeg).map(|i| i.width()).unwrap_or(0))
     });
-
+    g.bench_function("make_one_preview", |b| {
+        b.iter(|| make_preview(&frames[0]).map(|v| v.len()).unwrap_or(0))
+    });
     let dir = tempfile::tempdir().expect("temp dir");
     let paths: Vec<std::path::PathBuf> = frames
         .iter()
@@ -97,6 +99,31 @@ fn bench(c: &mut Criterion) {
             let decoded = load_frames(&paths).expect("decode");
             let tiles: Vec<(String, &RgbImage)> = ids.iter().cloned().zip(decoded.iter()).collect();
             stitch_all(&tiles, 6, &opts).map(|v| v.len()).unwrap_or(0)
+        })
+    });
+    // What the agent does: frames whose grid shows them at half size or less are read
+    // from the previews indexing stored.
+    let specs = plan(48, 6);
+    let scales = tile_scales(&[(1296, 968); 48], &specs, &opts);
+    let from_preview = use_previews(&scales, &specs, &[true; 48]);
+    let sources: Vec<std::path::PathBuf> = paths
+        .iter()
+        .zip(&frames)
+        .zip(&from_preview)
+        .map(|((p, f), &pre)| {
+            if !pre {
+                return p.clone();
+            }
+            let q = p.with_extension("preview.jpg");
+            std::fs::write(&q, make_preview(f).expect("preview")).expect("write");
+            q
+        })
+        .collect();
+    g.bench_function("48_jpeg_previews_decode_and_stitch", |b| {
+        b.iter(|| {
+            let decoded = load_frames(&sources).expect("decode");
+            let tiles: Vec<(String, &RgbImage)> = ids.iter().cloned().zip(decoded.iter()).collect();
+            stitch_with_specs(&tiles, &specs, &opts).map(|v| v.len()).unwrap_or(0)
         })
     });
     g.finish();

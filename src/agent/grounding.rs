@@ -151,10 +151,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
             return Err(JobFailure::new("detector_cannot_see_class", format!("the detector has no class for {class:?}, so no box can be proposed in the chosen image")));
         };
         let td = Instant::now();
-        let image = match grids.decoded.get(&idx) {
-            Some(i) => i.clone(),
-            None => super::stitching::decode(&ctx.scene, &[idx]).await?.remove(&idx).ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?,
-        };
+        let image = super::stitching::decode(&ctx.scene, &[idx]).await?.remove(&idx).ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?;
         let dets: Vec<Detection> = redetect(g, ctx, idx, image.clone()).await?.into_iter().filter(|d| same_class(&d.label, det_class)).collect();
         let det_json: Vec<Value> = dets.iter().map(|d| json!({"box": d.bbox, "score": d.score, "label": d.label})).collect();
         step(ctx, "detection", json!({"image_id": format!("{idx:05}"), "class": det_class}), json!({"image_id": format!("{idx:05}"), "frame": ctx.scene.frames[idx].name, "detections": det_json}), td).await;

@@ -122,7 +122,7 @@ impl VlmGrounder {
         let pre = preselect::run(self, &ctx, &analysis).await?;
         let grids = stitching::run(self, &ctx, &pre).await?;
         let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
-        let projected = projection::run(self, &ctx, &analysis.target_class, &pre, &choice, &grids.decoded).await?;
+        let projected = projection::run(self, &ctx, &analysis.target_class, &pre, &choice).await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

@@ -82,8 +82,8 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
     Ok(ViewCloud { mask, points, context })
 }
 
-/// `known` holds frames already decoded (by stitching); only the other views are decoded.
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice, known: &HashMap<usize, Arc<RgbImage>>) -> Result<Projected, JobFailure> {
+/// The anchor's image comes with `choice`; the ensemble views are decoded here.
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
@@ -131,18 +131,15 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         view_boxes.push((v.index, best.unwrap_or(v.bbox), best.is_some()));
     }
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
-    let missing: Vec<usize> = idxs.iter().copied().filter(|i| !known.contains_key(i)).collect();
-    let mut decoded = if missing.is_empty() { HashMap::new() } else { super::stitching::decode(&scene, &missing).await? };
-    for i in &idxs {
-        if let Some(im) = known.get(i) {
-            decoded.insert(*i, im.clone());
-        }
-    }
-    let views_decoded = missing.len();
+    let td = Instant::now();
+    let decoded: HashMap<usize, Arc<RgbImage>> = if idxs.is_empty() { HashMap::new() } else { super::stitching::decode(&scene, &idxs).await? };
+    let decode_ms = ms(td);
+    let views_decoded = decoded.len();
     let down = !g.params.geometry.support.hangs(target_class);
     let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
-    let (fusion, single, support) = tokio::task::spawn_blocking(move || {
+    let (fusion, single, support, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
+        let ts = Instant::now();
         let clouds: Vec<(usize, ViewCloud)> = vb
             .par_iter()
             .filter_map(|(i, b, _)| {
@@ -152,7 +149,11 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
             .filter(|(_, c)| !c.points.is_empty())
             .collect();
         let (other_pts, contexts): (Vec<_>, Vec<_>) = clouds.into_iter().map(|(i, c)| ((i, c.points), (i, c.context))).unzip();
+        let segment_ms = ms(ts);
+        let tf = Instant::now();
         let fusion = fuse_views(&anchor_pts, &other_pts, &params);
+        let fuse_ms = ms(tf);
+        let tsup = Instant::now();
         // Support completion sees around the anchor and every view the fusion kept.
         let mut context = anchor_ctx;
         for (i, c) in contexts {
@@ -163,7 +164,8 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
         let bulk = median_point(&anchor_pts).unwrap_or_default();
         let support = fusion.aabb.map(|b| extend_to_support(&b, bulk, &context, &frames, down, &params));
-        (fusion, single_view_box(&anchor_pts, &params), support)
+        let support_ms = ms(tsup);
+        (fusion, single_view_box(&anchor_pts, &params), support, [segment_ms, fuse_ms, support_ms])
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
@@ -182,7 +184,8 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "find_views_ms": find_ms, "views_decoded": views_decoded}),
+        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded,
+               "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )
     .await;

@@ -1,9 +1,12 @@
 //! Stage 3: dynamic stitching of the pre-selected frames into grid images with id labels.
-//! Frames are decoded once here (in parallel) and kept for the later stages.
+//! Frames are decoded here in parallel, from the half-size previews indexing stored wherever
+//! a grid shows them at half size or less; the later stages decode the few frames they need
+//! at full size.
 
 use image::RgbImage;
 use serde_json::json;
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -11,37 +14,48 @@ use super::preselect::Preselection;
 use super::{ms, step, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::SceneData;
-use crate::stitch::render::{load_frames, stitch_all, StitchedImage};
+use crate::stitch::decode::{load_frames, tile_scales, use_previews};
+use crate::stitch::plan::plan;
+use crate::stitch::render::{stitch_with_specs, StitchedImage};
 
-/// The stitched grids and the decoded frames.
+/// The stitched grids.
 pub struct Grids {
     pub images: Vec<StitchedImage>,
     pub urls: Vec<String>,
-    pub decoded: HashMap<usize, Arc<RgbImage>>,
 }
 
-/// Decode the colour images of `frames` in parallel (off the async runtime).
+/// Decode the colour images of `frames` at full size, in parallel (off the async runtime).
 pub async fn decode(scene: &Arc<SceneData>, frames: &[usize]) -> Result<HashMap<usize, Arc<RgbImage>>, JobFailure> {
     let paths: Vec<_> = frames.iter().map(|&i| scene.frames[i].color_path.clone()).collect();
-    let imgs = tokio::task::spawn_blocking(move || load_frames(&paths))
+    let imgs = decode_paths(paths).await?;
+    Ok(frames.iter().copied().zip(imgs.into_iter().map(Arc::new)).collect())
+}
+
+async fn decode_paths(paths: Vec<PathBuf>) -> Result<Vec<RgbImage>, JobFailure> {
+    tokio::task::spawn_blocking(move || load_frames(&paths))
         .await
         .map_err(|e| JobFailure::new("internal", format!("decoder task failed: {e}")))?
-        .map_err(|e| JobFailure::new("storage_error", format!("cannot decode a stored frame: {e:#}")))?;
-    Ok(frames.iter().copied().zip(imgs.into_iter().map(Arc::new)).collect())
+        .map_err(|e| JobFailure::new("storage_error", format!("cannot decode a stored frame: {e:#}")))
 }
 
 pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection) -> Result<Grids, JobFailure> {
     let t = Instant::now();
-    let decoded = decode(&ctx.scene, &pre.frames).await?;
-    let decode_ms = ms(t);
-    let t_render = Instant::now();
     let limit = g.params.image_limit;
     let mut opts = g.params.stitch.clone();
     opts.max_side = opts.max_side.min(g.client.config().max_image_side);
-    let frames: Vec<(String, Arc<RgbImage>)> = pre.frames.iter().map(|&i| (format!("{i:05}"), decoded[&i].clone())).collect();
+    let specs = plan(pre.frames.len(), limit);
+    let dims: Vec<(u32, u32)> = pre.frames.iter().map(|&i| (ctx.scene.frames[i].camera.color.width, ctx.scene.frames[i].camera.color.height)).collect();
+    let scales = tile_scales(&dims, &specs, &opts);
+    let has_preview: Vec<bool> = pre.frames.iter().map(|&i| ctx.scene.frames[i].preview_path().is_file()).collect();
+    let from_preview = use_previews(&scales, &specs, &has_preview);
+    let paths: Vec<PathBuf> = pre.frames.iter().zip(&from_preview).map(|(&i, &p)| if p { ctx.scene.frames[i].preview_path() } else { ctx.scene.frames[i].color_path.clone() }).collect();
+    let decoded = decode_paths(paths).await?;
+    let decode_ms = ms(t);
+    let t_render = Instant::now();
+    let ids: Vec<String> = pre.frames.iter().map(|i| format!("{i:05}")).collect();
     let images = tokio::task::spawn_blocking(move || {
-        let refs: Vec<(String, &RgbImage)> = frames.iter().map(|(id, im)| (id.clone(), im.as_ref())).collect();
-        stitch_all(&refs, limit, &opts)
+        let refs: Vec<(String, &RgbImage)> = ids.into_iter().zip(decoded.iter()).collect();
+        stitch_with_specs(&refs, &specs, &opts)
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("stitching task failed: {e}")))?
@@ -56,6 +70,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection) -> Resul
         .zip(&urls)
         .map(|(im, url)| json!({"url": url, "rows": im.spec.rows, "cols": im.spec.cols, "image_ids": im.image_ids, "width": im.width, "height": im.height, "jpeg_bytes": im.jpeg.len()}))
         .collect();
-    step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": decode_ms, "render_ms": render_ms}), t).await;
-    Ok(Grids { images, urls, decoded })
+    let previews = from_preview.iter().filter(|&&p| p).count();
+    step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": decode_ms, "render_ms": render_ms, "from_previews": previews}), t).await;
+    Ok(Grids { images, urls })
 }

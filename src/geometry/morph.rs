@@ -31,12 +31,29 @@ fn square_op(mask: &Mask, kernel: u32, op: fn(&GrayImage, Norm, u8) -> GrayImage
         return mask.clone();
     }
     let radius = (kernel / 2).min(254) as u8;
-    let out = op(&to_gray(mask), Norm::LInf, radius);
-    Mask {
-        width: mask.width,
-        height: mask.height,
+    // Only the mask's bounding box grown by the radius can change; with one more pixel of
+    // background around it, working on that crop gives the whole image's result.
+    let Some(b) = bounds(mask, u32::from(radius) + 1) else {
+        return mask.clone();
+    };
+    let out = op(&to_gray(&crop(mask, b)), Norm::LInf, radius);
+    let part = Mask {
+        width: out.width(),
+        height: out.height(),
         data: out.pixels().map(|p| p[0] > 0).collect(),
+    };
+    paste(mask.width, mask.height, &part, b)
+}
+
+/// A `width` x `height` mask holding `part` at the top-left corner of `b`, empty elsewhere.
+fn paste(width: u32, height: u32, part: &Mask, b: [u32; 4]) -> Mask {
+    let mut out = Mask::new(width, height);
+    for y in b[1]..b[3] {
+        let dst = (y * width + b[0]) as usize;
+        let src = ((y - b[1]) * part.width) as usize;
+        out.data[dst..dst + part.width as usize].copy_from_slice(&part.data[src..src + part.width as usize]);
     }
+    out
 }
 
 /// Dilate with a `kernel` x `kernel` all-ones square (odd sizes; 0 and 1 return the mask).
@@ -106,13 +123,7 @@ pub fn postprocess_mask(mask: &Mask, kernel: u32, keep: usize) -> Mask {
         return mask.clone();
     };
     let part = keep_largest_components(&erode_square(&crop(mask, b), kernel), keep);
-    let mut out = Mask::new(mask.width, mask.height);
-    for y in b[1]..b[3] {
-        let dst = (y * mask.width + b[0]) as usize;
-        let src = ((y - b[1]) * part.width) as usize;
-        out.data[dst..dst + part.width as usize].copy_from_slice(&part.data[src..src + part.width as usize]);
-    }
-    out
+    paste(mask.width, mask.height, &part, b)
 }
 
 #[cfg(test)]
@@ -167,6 +178,22 @@ mod tests {
             assert_eq!(postprocess_mask(&m, k, keep), full, "kernel {k} keep {keep}");
         }
         assert_eq!(postprocess_mask(&Mask::new(5, 5), 3, 2).count(), 0);
+    }
+
+    #[test]
+    fn cropped_square_ops_equal_the_whole_image_operator() {
+        let mut m = Mask::new(60, 40);
+        rect(&mut m, 0, 3, 20, 30); // touches the left border
+        rect(&mut m, 30, 10, 45, 25);
+        rect(&mut m, 52, 0, 60, 6); // touches the top-right corner
+        for k in [3, 5, 9, 15] {
+            for (name, op) in [("erode", imageproc::morphology::erode as fn(&GrayImage, Norm, u8) -> GrayImage), ("dilate", imageproc::morphology::dilate)] {
+                let whole = op(&to_gray(&m), Norm::LInf, (k / 2) as u8);
+                let want: Vec<bool> = whole.pixels().map(|p| p[0] > 0).collect();
+                assert_eq!(square_op(&m, k, op).data, want, "{name} kernel {k}");
+            }
+        }
+        assert_eq!(dilate_square(&Mask::new(8, 8), 5).count(), 0);
     }
 
     #[test]

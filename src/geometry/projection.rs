@@ -27,7 +27,8 @@ pub struct BackprojectOptions {
     pub voxel: f64,
     /// Emit at most one point per depth pixel (the first mask pixel that reads it). When
     /// colour is larger than depth (ScanNet: ~2x), several colour pixels read the same
-    /// depth value; this keeps one point per measurement.
+    /// depth value; this keeps one point per measurement, and samples the mask every
+    /// ⌊colour/depth⌋ pixels (which still reaches every depth pixel).
     pub one_per_depth_pixel: bool,
 }
 
@@ -122,7 +123,13 @@ pub fn backproject_mask(
     if !super::camera::is_finite_matrix(&m) {
         return Err(ProjectionError::BadPose);
     }
-    let stride = opts.stride.max(1) as usize;
+    let mut stride = opts.stride.max(1) as usize;
+    if opts.one_per_depth_pixel {
+        // No finer than the depth image: consecutive samples `ratio` colour pixels apart
+        // still land on every depth pixel, and the skipped ones would read the same values.
+        let ratio = (cam.color.width / cam.depth_size.0.max(1)).min(cam.color.height / cam.depth_size.1.max(1));
+        stride = stride.max(ratio.max(1) as usize);
+    }
     let w = mask.width as usize;
     let mut out = Vec::new();
     let dw = cam.depth_size.0 as usize;

@@ -1,8 +1,10 @@
 //! Scene indexing: after upload, the configured detector runs over every usable frame in
 //! the background and its detections are cached, so a query's view pre-selection is a
-//! lookup. The scene is `indexing` until done, then `ready` (jobs on it wait queued).
+//! lookup. Each frame's half-size preview is stored on the way, for stitching. The scene is
+//! `indexing` until done, then `ready` (jobs on it wait queued).
 
 use std::collections::HashMap;
+use std::path::Path;
 use std::sync::Arc;
 
 use crate::jobs::JobSystem;
@@ -13,15 +15,29 @@ use crate::vision::{DetectInput, Detection, Detector};
 /// The hook the upload handler calls with a new scene id.
 pub type IndexHook = Arc<dyn Fn(String) + Send + Sync>;
 
-/// Detect on one stored frame (decoding its JPEG; instance masks for the oracle).
+/// Detect on one stored frame (decoding its JPEG; instance masks for the oracle) and store
+/// its preview. A preview that cannot be written is only logged: stitching then reads the
+/// full frame.
 pub fn detect_frame(detector: &dyn Detector, frame: &FrameData, labels: Option<&HashMap<u32, String>>) -> anyhow::Result<Vec<Detection>> {
     let img = image::open(&frame.color_path).map_err(|e| anyhow::anyhow!("frame {}: cannot decode colour: {e}", frame.name))?.to_rgb8();
+    if let Err(e) = store_preview(&img, &frame.preview_path()) {
+        tracing::warn!(frame = %frame.name, "cannot store the frame's preview: {e:#}");
+    }
     let instances = match (&frame.instance_path, detector.needs_instances()) {
         (Some(p), true) => Some(crate::agent::grounding::read_instance_mask(p)?),
         (None, true) => anyhow::bail!("the {} detector needs instance masks and frame {} has none", detector.name(), frame.name),
         _ => None,
     };
     detector.detect(&DetectInput { color: &img, instances: instances.as_ref(), labels, frame_key: frame.idx as u64 })
+}
+
+/// Write the preview of `img` to `path` atomically (a crash never leaves half a file).
+fn store_preview(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
+    let jpeg = crate::stitch::make_preview(img)?;
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, jpeg)?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
 }
 
 /// Build the hook; `detector` is None when it could not be loaded (readiness says why).

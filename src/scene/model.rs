@@ -24,6 +24,12 @@ impl FrameData {
     pub fn image_id(&self) -> String {
         format!("{:05}", self.idx)
     }
+
+    /// Where indexing stores the frame's half-size preview (beside the colour image), which
+    /// stitching reads instead of the full frame when a grid shows it at half size or less.
+    pub fn preview_path(&self) -> PathBuf {
+        self.color_path.with_extension("preview.jpg")
+    }
 }
 
 /// A whole stored scene.

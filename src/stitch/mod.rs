@@ -7,6 +7,7 @@
 
 pub mod annotate;
 pub mod cli;
+pub mod decode;
 pub mod label;
 pub mod plan;
 pub mod render;
@@ -14,8 +15,9 @@ pub mod retrieval;
 
 pub use annotate::{annotate_instances, AnnotateOptions};
 pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
+pub use decode::{decode_image, load_frames, make_preview, tile_scales, use_previews, PREVIEW_SCALE};
 pub use render::{
-    decode_image, encode_jpeg, jpeg_data_url, load_frames, render_grid,
+    encode_jpeg, jpeg_data_url, render_grid,
     render_grid_with_placements, resize_to_limit, resize_to_limit_with, stitch_all,
     stitch_with_specs, ResizeFilter, StitchOptions, StitchedImage, TilePlacement,
 };

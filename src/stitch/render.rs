@@ -10,7 +10,6 @@ use fast_image_resize::{FilterType, ResizeAlg, ResizeOptions, Resizer};
 use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::path::Path;
 
 /// Settings for stitching and encoding (per VLM backend).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -263,25 +262,6 @@ pub fn encode_jpeg(img: &RgbImage, quality: u8) -> Result<Vec<u8>> {
     )
     .context("cannot encode JPEG")?;
     Ok(buf)
-}
-
-/// Decode JPEG (or PNG) bytes into RGB.
-pub fn decode_image(bytes: &[u8]) -> Result<RgbImage> {
-    Ok(image::load_from_memory(bytes)
-        .context("cannot decode image")?
-        .to_rgb8())
-}
-
-/// Read and decode image files in parallel.
-pub fn load_frames<P: AsRef<Path> + Sync>(paths: &[P]) -> Result<Vec<RgbImage>> {
-    paths
-        .par_iter()
-        .map(|p| {
-            let p = p.as_ref();
-            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
-            decode_image(&bytes).with_context(|| format!("in {}", p.display()))
-        })
-        .collect()
 }
 
 /// Plan, render and encode all `frames` (id, image) under soft limit `limit`, grids in

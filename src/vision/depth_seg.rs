@@ -61,7 +61,8 @@ impl Default for DepthSegmenter {
     }
 }
 
-/// A grid of sample cells (stride `s` colour pixels) over the box plus a margin.
+/// A grid of sample cells (stride `s` colour pixels, at least one depth pixel) over the box
+/// plus a margin.
 struct Grid {
     x0: u32,
     y0: u32,
@@ -106,7 +107,10 @@ impl DepthSegmenter {
         let (x0, y0) = (bx0.saturating_sub(mx), by0.saturating_sub(my));
         let (x1, y1) = ((bx1 + mx).min(cw), (by1 + my).min(ch));
         let area = ((x1 - x0) * (y1 - y0)) as f64;
-        let s = ((area / self.max_cells as f64).sqrt().ceil() as u32).max(1);
+        // No finer than the depth image: a colour image larger than its depth map (ScanNet:
+        // 1296 against 640 wide) has no more depth detail per pixel to grow over.
+        let depth_stride = (cw / input.depth.width.max(1)).max(1);
+        let s = ((area / self.max_cells as f64).sqrt().ceil() as u32).max(depth_stride);
         let w = ((x1 - x0) as usize).div_ceil(s as usize);
         let h = ((y1 - y0) as usize).div_ceil(s as usize);
         let cam = input.camera;
@@ -453,17 +457,13 @@ impl Segmenter for DepthSegmenter {
         let mut region = Self::largest_component(&g, &inside);
         Self::fill_holes(&g, &mut region);
         let mut mask = Mask::new(cw, ch);
-        let (bx1, by1) = (bbox[2].ceil(), bbox[3].ceil());
+        let (bx0, by0, bx1, by1) = (bbox[0].floor(), bbox[1].floor(), bbox[2].ceil(), bbox[3].ceil());
         for i in (0..region.len()).filter(|&i| region[i]) {
             let (gx, gy) = ((i % g.w) as u32, (i / g.w) as u32);
             for dy in 0..g.s {
                 for dx in 0..g.s {
                     let (x, y) = (g.x0 + gx * g.s + dx, g.y0 + gy * g.s + dy);
-                    if (x as f32) >= bbox[0].floor()
-                        && (y as f32) >= bbox[1].floor()
-                        && (x as f32) < bx1
-                        && (y as f32) < by1
-                    {
+                    if (x as f32) >= bx0 && (y as f32) >= by0 && (x as f32) < bx1 && (y as f32) < by1 {
                         mask.set(x, y, true);
                     }
                 }

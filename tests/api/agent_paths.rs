@@ -116,6 +116,44 @@ async fn unparsable_then_invalid_image_then_success() {
     for g in &grids {
         assert_jpeg(&f, g["url"].as_str().unwrap()).await;
     }
+    // 320x240 frames in 2048-pixel grids are drawn larger than their previews.
+    assert_eq!(steps(&job, "stitching")[0]["outputs"]["from_previews"], 0);
+}
+
+#[tokio::test]
+async fn grids_drawn_at_half_size_or_less_read_the_previews_indexing_stored() {
+    // A 256-pixel side limit draws every 320x240 frame at about a quarter of its size.
+    let f = Fixture::start_with(vec![], 5_000, "oracle", |c| c.max_image_side = 256).await;
+    let colour = f.app.data_dir.join("scenes").join(&f.scene_id).join("color");
+    let (mut previews, mut frames) = (0, 0);
+    for e in std::fs::read_dir(&colour).unwrap() {
+        let p = e.unwrap().path();
+        if p.to_string_lossy().ends_with(".preview.jpg") {
+            let img = image::open(&p).unwrap();
+            assert_eq!((img.width(), img.height()), (160, 120), "{}", p.display());
+            previews += 1;
+        } else {
+            frames += 1;
+        }
+    }
+    assert!(frames > 0);
+    assert_eq!(previews, frames, "one preview per frame (the fixture scene has no unusable frame)");
+
+    let (class, frame) = class_with_single(&f);
+    f.vlm.script_push(vec![analysis(&class), pick_image(frame as u32)]);
+    let job = f.run_job(QUERY).await;
+    assert_eq!(job["status"], "succeeded", "{job:#}");
+    let st = &steps(&job, "stitching")[0]["outputs"];
+    assert_eq!(st["from_previews"], f.offered(&class).len(), "{st:#}");
+    for g in st["grids"].as_array().unwrap() {
+        assert_eq!(g["height"].as_u64().unwrap().max(g["width"].as_u64().unwrap()), 256, "{g}");
+        assert_jpeg(&f, g["url"].as_str().unwrap()).await;
+    }
+    // Detection and projection still ran on the full frame: the box is in its pixels.
+    let det = &steps(&job, "detection")[0]["outputs"]["detections"][0]["box"];
+    let want = f.dets[&frame].iter().find(|d| d.label == class).unwrap().bbox;
+    let got: Vec<f32> = det.as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
+    assert_eq!(got, want.to_vec());
 }
 
 #[tokio::test]
