@@ -16,7 +16,7 @@ use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
 use crate::geometry::ensemble::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{Aabb, GeometryParams, Mask};
+use crate::geometry::{snap_planar_to_wall, Aabb, GeometryParams, Mask};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -136,6 +136,9 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let decode_ms = ms(td);
     let views_decoded = decoded.len();
     let down = !g.params.geometry.support.hangs(target_class);
+    let flat = g.params.geometry.support.is_flat(target_class);
+    let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
+    let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
     let (fusion, single, support, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
@@ -163,13 +166,17 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         }
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
         let bulk = median_point(&anchor_pts).unwrap_or_default();
-        let support = fusion.aabb.map(|b| extend_to_support(&b, bulk, &context, &frames, down, &params));
+        let support = fusion.aabb.map(|b| {
+            let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
+            let (b, planar) = if flat { snap_planar_to_wall(&b, &anchor_pts, &context, eye, &params) } else { (b, Vec::new()) };
+            (b, moved, planar)
+        });
         let support_ms = ms(tsup);
         (fusion, single_view_box(&anchor_pts, &params), support, [segment_ms, fuse_ms, support_ms])
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved) = support.ok_or_else(|| JobFailure::new("projection_failed", "no points survived outlier removal"))?;
+    let (bbox, moved, planar) = support.ok_or_else(|| JobFailure::new("projection_failed", "no points survived outlier removal"))?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
     let view_json: Vec<_> = views
         .iter()
@@ -184,7 +191,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded,
+        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

@@ -207,7 +207,9 @@ pub fn flatten_noisy_planes(b: Aabb, points: &[Point3<f64>], max_iqr: f64) -> (A
         (q(0.25), q(0.75))
     };
     let qs = [quartiles(0), quartiles(1), quartiles(2)];
-    for a in 0..3 {
+    // Horizontal axes only: a thin extent along gravity (a pillow, a table top) is the
+    // object's real height, not noise around a wall-hung plane.
+    for a in 0..2 {
         let iqr = qs[a].1 - qs[a].0;
         let others = [(a + 1) % 3, (a + 2) % 3];
         let extent = b.max[a] - b.min[a];

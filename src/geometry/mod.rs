@@ -4,7 +4,8 @@
 //! [`mask_points`] (erode + largest components + back-project) on the anchor view →
 //! [`find_views`] over the other frames → the agent segments each returned view →
 //! [`mask_points`] per view → [`fuse_views`] (chamfer filter, union, outlier removal, AABB) → [`extend_to_support`]
-//! (faces moved through unseen space onto the floor or wall the object rests on; ours).
+//! (faces moved through unseen space onto the floor or wall the object rests on; ours) →
+//! [`snap_planar_to_wall`] (a flat object's depth measured against its wall in one view; ours).
 
 pub mod boxes;
 pub mod camera;
@@ -13,6 +14,7 @@ pub mod ensemble;
 pub mod mask;
 pub mod morph;
 pub mod params;
+pub mod planar;
 pub mod projection;
 pub mod support;
 
@@ -28,6 +30,7 @@ pub use ensemble::{
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
+pub use planar::{snap_planar_to_wall, PlanarSnap};
 pub use support::{context_points, extend_to_support, median_point, SupportExtension, SupportParams};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,

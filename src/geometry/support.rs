@@ -83,18 +83,37 @@ pub struct SupportParams {
     /// query's target class, whole or by its last word): their bottom face never moves
     /// down, since the layer below a window is a cabinet or table in front of the wall.
     pub hanging: Vec<String>,
+    /// Classes besides `hanging` that are flat against a wall (a door stands on the floor,
+    /// but is as thin as a picture): only these and `hanging` get [`super::planar`]'s depth.
+    pub flat: Vec<String>,
+    /// Largest interquartile range (m) of the anchor's points along a horizontal axis for
+    /// them to count as one plane facing the camera (see [`super::planar`]); 0 disables.
+    pub planar_iqr: f64,
+    /// Largest depth (m) from such a plane to the wall behind it that makes the two one
+    /// object (a door, a window, a box pushed against the wall).
+    pub planar_max_depth: f64,
 }
 
 impl SupportParams {
     /// Does an object of `class` hang on a wall (no downward completion)?
     pub fn hangs(&self, class: &str) -> bool {
-        let c = class.trim().to_lowercase();
-        let last = c.split_whitespace().last().unwrap_or("");
-        self.hanging.iter().any(|h| {
-            let h = h.to_lowercase();
-            h == c || h == last || h.strip_suffix('s').is_some_and(|x| x == last) || format!("{h}s") == last
-        })
+        class_in(&self.hanging, class)
     }
+
+    /// Is an object of `class` flat against a wall (see [`super::planar`])?
+    pub fn is_flat(&self, class: &str) -> bool {
+        self.hangs(class) || class_in(&self.flat, class)
+    }
+}
+
+/// Is `class` in `list`, whole or by its last word, singular or plural?
+fn class_in(list: &[String], class: &str) -> bool {
+    let c = class.trim().to_lowercase();
+    let last = c.split_whitespace().last().unwrap_or("");
+    list.iter().any(|h| {
+        let h = h.to_lowercase();
+        h == c || h == last || h.strip_suffix('s').is_some_and(|x| x == last) || format!("{h}s") == last
+    })
 }
 
 impl Default for SupportParams {
@@ -117,6 +136,9 @@ impl Default for SupportParams {
             context_grow: 0.5,
             mask_clearance: 9,
             hanging: ["window", "picture", "painting", "poster", "photo", "frame", "mirror", "whiteboard", "blackboard", "board", "clock", "sign"].map(String::from).to_vec(),
+            flat: ["door", "curtain", "blinds", "shade", "radiator"].map(String::from).to_vec(),
+            planar_iqr: 0.05,
+            planar_max_depth: 0.15,
         }
     }
 }
@@ -508,6 +530,8 @@ mod tests {
         let p = gp();
         assert!(p.support.hangs("window") && p.support.hangs("Framed Pictures") && p.support.hangs("white board"));
         assert!(!p.support.hangs("chair") && !p.support.hangs("window seat"));
+        assert!(p.support.is_flat("wooden doors") && p.support.is_flat("picture") && !p.support.hangs("door"));
+        assert!(!p.support.is_flat("chair") && !p.support.is_flat("lamp") && !p.support.is_flat("door knob"));
         let (moved_box, _) = extend_to_support(&b, b.center(), &top, &[], true, &p);
         assert!((moved_box.min[2] - 0.54).abs() < 0.02, "a resting object would move: {moved_box:?}");
         let (e, moved) = extend_to_support(&b, b.center(), &top, &[], !p.support.hangs("window"), &p);

@@ -1,0 +1,221 @@
+//! Flat objects against a wall (windows, pictures, doors, a box pushed against the wall),
+//! measured in one view.
+//!
+//! A few centimetres of depth noise and pose error per view are nothing for a chair, but
+//! a window is 6 cm deep: the union of several views, each offset by its own pose error,
+//! comes out 15–30 cm deep, and even one view's min–max spans its noise. Two things are
+//! still measured well: the median of the object's points along the wall normal (its front
+//! face), and the wall around it, found in the same views; their difference is the
+//! object's depth.
+//!
+//! Only for objects known to be flat against a wall (`SupportParams::is_flat`): a chair
+//! pushed against the wall, seen from the front, shows its back as one plane with the wall
+//! just behind, and is no window.
+//!
+//! So, on a horizontal axis where the anchor view's points form one plane facing it
+//! (interquartile range at most `planar_iqr` and at most a quarter of that on both other
+//! axes) and a wall layer lies behind that plane (seen from the camera) within
+//! `planar_max_depth`, the box spans from the plane to the wall on that axis.
+
+use nalgebra::Point3;
+use serde::Serialize;
+
+use super::cloud::{remove_statistical_outliers, voxel_downsample};
+use super::support::SupportParams;
+use super::{Aabb, GeometryParams};
+
+/// What was found on one horizontal axis.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlanarSnap {
+    /// "x" or "y".
+    pub axis: &'static str,
+    /// Interquartile range of the anchor's points on the axis.
+    pub iqr: f64,
+    /// The front plane (median of the anchor's points on the axis).
+    pub front: f64,
+    /// The wall behind it, when one was found within reach.
+    pub wall: Option<f64>,
+    /// The box's extent on the axis before.
+    pub was: [f64; 2],
+}
+
+impl PlanarSnap {
+    /// Did this axis change the box?
+    pub fn applied(&self) -> bool {
+        self.wall.is_some()
+    }
+}
+
+fn quartiles(points: &[Point3<f64>], a: usize) -> (f64, f64, f64) {
+    let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
+    v.sort_by(f64::total_cmp);
+    let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    (q(0.25), q(0.5), q(0.75))
+}
+
+/// The wall behind the plane `slab` (zero extent on `axis`): among the context points in the
+/// ring of width `margin` around its footprint and between 1 cm and `planar_max_depth`
+/// behind it (on the `sign` side), the `layer`-thick slice holding the most points, if it
+/// holds at least `min_points` and reaches past the footprint sideways at the footprint's
+/// height; its
+/// median coordinate. The densest slice, not the nearest: the plane's own noisy fringe
+/// shows up just behind it, but a wall around an object is much larger than that fringe.
+fn densest_layer(slab: &Aabb, context: &[Point3<f64>], (axis, sign): (usize, f64), p: &SupportParams) -> Option<f64> {
+    let others = [(axis + 1) % 3, (axis + 2) % 3];
+    let front = slab.min[axis];
+    let in_ring = |q: &Point3<f64>| {
+        others.iter().all(|&o| q[o] >= slab.min[o] - p.margin && q[o] <= slab.max[o] + p.margin) && others.iter().any(|&o| q[o] < slab.min[o] || q[o] > slab.max[o])
+    };
+    let mut gaps: Vec<f64> = context.iter().filter(|q| in_ring(q)).map(|q| sign * (q[axis] - front)).filter(|g| *g >= MIN_DEPTH && *g <= p.planar_max_depth).collect();
+    gaps.sort_by(f64::total_cmp);
+    let (mut best, mut best_n) = (None, 0usize);
+    for (lo, &g) in gaps.iter().enumerate() {
+        let n = gaps[lo..].partition_point(|x| *x < g + p.layer);
+        if n > best_n {
+            (best, best_n) = (Some(lo), n);
+        }
+    }
+    let lo = best.filter(|_| best_n >= p.min_points)?;
+    let (g0, g1) = (gaps[lo], gaps[lo + best_n - 1]);
+    // A wall runs on past the object at its height: `min_points` of the slice beside the
+    // footprint (one side may be hidden: a corner, a cupboard). What lies behind a chair's
+    // back (its seat) or past a cabinet's front (its top) is below or above it.
+    let lateral = 1 - axis;
+    let beside = |q: &&Point3<f64>| q[2] >= slab.min[2] && q[2] <= slab.max[2];
+    let slice = context.iter().filter(|q| in_ring(q)).filter(beside).filter(|q| (g0..=g1).contains(&(sign * (q[axis] - front))));
+    if slice.filter(|q| q[lateral] < slab.min[lateral] || q[lateral] > slab.max[lateral]).count() < p.min_points {
+        return None;
+    }
+    Some(front + sign * gaps[lo + best_n / 2])
+}
+
+/// Nearest a wall may be behind a plane (m): nearer, it is the plane's own noise.
+const MIN_DEPTH: f64 = 0.01;
+
+/// Set the extent of `b` to [front plane, wall] on each horizontal axis where the anchor's
+/// points `anchor` are a plane facing `camera` (the anchor camera's centre) and the context
+/// points `context` (see [`super::support::context_points`]) hold a wall behind it. Every
+/// plane found is reported, with its wall or none. Off when `planar_iqr` is 0 or support
+/// completion is disabled.
+pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f64>], camera: [f64; 3], params: &GeometryParams) -> (Aabb, Vec<PlanarSnap>) {
+    const NAMES: [&str; 2] = ["x", "y"];
+    let p = &params.support;
+    let mut out = *b;
+    let mut snaps = Vec::new();
+    if !p.enabled || p.planar_iqr <= 0.0 || context.is_empty() {
+        return (out, snaps);
+    }
+    // The cloud single-view boxes use: one point per fusion voxel (even density, whatever
+    // the distance), statistical outliers removed.
+    let anchor = &remove_statistical_outliers(&voxel_downsample(anchor, params.fusion_voxel), params.sor_neighbors, params.sor_std_ratio);
+    let Some(extent) = Aabb::from_points(anchor).filter(|_| anchor.len() >= 20) else {
+        return (out, snaps);
+    };
+    let qs = [quartiles(anchor, 0), quartiles(anchor, 1), quartiles(anchor, 2)];
+    let iqr = |a: usize| qs[a].2 - qs[a].0;
+    for a in 0..2 {
+        let others = [(a + 1) % 3, (a + 2) % 3];
+        if iqr(a) > p.planar_iqr || others.iter().any(|&o| iqr(o) < 4.0 * iqr(a).max(0.005)) {
+            continue;
+        }
+        let front = qs[a].1;
+        // The wall is on the far side of the plane from the camera.
+        let sign = if front >= camera[a] { 1.0 } else { -1.0 };
+        // The wall is looked for around the plane's own footprint in the anchor view, not
+        // the fused box's, which other views may have widened.
+        let mut slab = extent;
+        slab.min[a] = front;
+        slab.max[a] = front;
+        let wall = densest_layer(&slab, context, (a, sign), p);
+        snaps.push(PlanarSnap { axis: NAMES[a], iqr: iqr(a), front, wall, was: [b.min[a], b.max[a]] });
+        if let Some(wall) = wall {
+            out.min[a] = front.min(wall);
+            out.max[a] = front.max(wall);
+        }
+    }
+    (out, snaps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic noise in [-1, 1].
+    fn jitter(i: usize, k: u64) -> f64 {
+        let h = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(k.wrapping_mul(0xBF58_476D_1CE4_E5B9));
+        ((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    /// Points on the plane y = `y` over x in [x0, x1], z in [z0, z1], with noise `n` on y.
+    fn plane_y(y: f64, (x0, x1): (f64, f64), (z0, z1): (f64, f64), n: f64, hole: Option<[f64; 4]>) -> Vec<Point3<f64>> {
+        let mut out = Vec::new();
+        let mut i = 0;
+        let mut x = x0;
+        while x <= x1 {
+            let mut z = z0;
+            while z <= z1 {
+                i += 1;
+                if !hole.is_some_and(|h| x > h[0] && x < h[1] && z > h[2] && z < h[3]) {
+                    out.push(Point3::new(x, y + n * jitter(i, 1), z));
+                }
+                z += 0.02;
+            }
+            x += 0.02;
+        }
+        out
+    }
+
+    #[test]
+    fn a_noisy_window_spans_from_its_plane_to_the_wall() {
+        // Window 6 cm deep flush with the wall at y = 6.11; its face at 6.05 seen with
+        // ±3 cm of noise, the camera in the room (y < 6).
+        let window = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.03, None);
+        let wall = plane_y(6.11, (0.4, 2.2), (0.7, 2.4), 0.01, Some([0.7, 1.9, 1.0, 2.1]));
+        let fused = Aabb::new([0.68, 5.9, 0.98], [1.92, 6.2, 2.12]);
+        let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, [1.3, 3.0, 1.5], &GeometryParams::default());
+        assert_eq!(snaps.len(), 1, "{snaps:?}");
+        assert_eq!(snaps[0].axis, "y");
+        assert!(snaps[0].applied());
+        assert!((b.min[1] - 6.05).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01, "{b:?}");
+        assert_eq!((b.min[0], b.max[0], b.min[2], b.max[2]), (0.68, 1.92, 0.98, 2.12));
+    }
+
+    #[test]
+    fn deep_objects_free_standing_planes_and_disabled_settings_are_left_alone() {
+        let gp = GeometryParams::default();
+        let wall = plane_y(6.11, (0.4, 2.2), (0.0, 2.4), 0.005, Some([0.7, 1.9, 0.0, 1.0]));
+        // A cabinet: its front and its top are seen, so the cloud is no plane.
+        let mut cabinet = plane_y(5.6, (0.7, 1.9), (0.0, 0.9), 0.005, None);
+        for k in 0..25 {
+            cabinet.extend(plane_y(5.6 + 0.02 * k as f64, (0.7, 1.9), (0.9, 0.9), 0.0, None));
+        }
+        let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
+        assert_eq!(snap_planar_to_wall(&b, &cabinet, &wall, [1.3, 3.0, 1.5], &gp), (b, vec![]), "not a plane");
+        // A screen standing 40 cm in front of the wall: the wall is too far to be its back.
+        let screen = plane_y(5.7, (0.7, 1.9), (0.2, 0.9), 0.02, None);
+        let b = Aabb::new([0.7, 5.66, 0.2], [1.9, 5.74, 0.9]);
+        let (same, snaps) = snap_planar_to_wall(&b, &screen, &wall, [1.3, 3.0, 1.5], &gp);
+        assert_eq!(same, b);
+        assert!(snaps.len() == 1 && !snaps[0].applied(), "a plane, but no wall within reach: {snaps:?}");
+        // A chair seen from behind: its back is a plane, its seat lies behind it, but only
+        // below the back, not on both sides as a wall does.
+        let back = plane_y(2.0, (1.0, 1.45), (0.5, 0.95), 0.005, None);
+        let mut seat = Vec::new();
+        for k in 0..8 {
+            seat.extend(plane_y(2.02 + 0.01 * k as f64, (0.95, 1.5), (0.45, 0.45), 0.0, None));
+            seat.extend(plane_y(2.02 + 0.01 * k as f64, (0.95, 1.5), (0.43, 0.43), 0.0, None));
+        }
+        let b = Aabb::new([1.0, 1.98, 0.0], [1.45, 2.45, 0.95]);
+        let (same, snaps) = snap_planar_to_wall(&b, &back, &seat, [1.2, 0.5, 1.2], &gp);
+        assert_eq!(same, b, "{snaps:?}");
+        // Seen from behind the wall (camera at y > 6.11), the wall is on the camera's side.
+        let window = plane_y(6.05, (0.7, 1.9), (0.0, 1.0), 0.02, None);
+        let b = Aabb::new([0.7, 6.0, 0.0], [1.9, 6.1, 1.0]);
+        assert_eq!(snap_planar_to_wall(&b, &window, &wall, [1.3, 8.0, 1.5], &gp).0, b);
+        // Off switches.
+        let mut off = gp.clone();
+        off.support.planar_iqr = 0.0;
+        assert_eq!(snap_planar_to_wall(&b, &window, &wall, [1.3, 3.0, 1.5], &off).1, vec![]);
+        assert!(snap_planar_to_wall(&b, &window, &wall, [1.3, 3.0, 1.5], &gp).1[0].applied());
+    }
+}
