@@ -187,7 +187,7 @@ pub fn fuse_views(
     }
 }
 
-/// On an axis where the points are a plane blurred by depth noise (interquartile range at
+/// On a horizontal axis where the points are a plane blurred by depth noise (interquartile range at
 /// most `max_iqr`, at least 4 times smaller than on both other axes, and a min–max extent
 /// within 8 of it, as a blur gives and a second surface does not: a window, a picture),
 /// the min–max extent measures the noise, not the object. There the

@@ -1,5 +1,5 @@
-//! Flat objects against a wall (windows, pictures, doors, a box pushed against the wall),
-//! measured in one view.
+//! Flat objects against a wall (windows, pictures, doors): their depth, measured in one
+//! view.
 //!
 //! A few centimetres of depth noise and pose error per view are nothing for a chair, but
 //! a window is 6 cm deep: the union of several views, each offset by its own pose error,
@@ -8,9 +8,9 @@
 //! face), and the wall around it, found in the same views; their difference is the
 //! object's depth.
 //!
-//! Only for objects known to be flat against a wall (`SupportParams::is_flat`): a chair
-//! pushed against the wall, seen from the front, shows its back as one plane with the wall
-//! just behind, and is no window.
+//! The agent applies it only to classes known to be flat against a wall
+//! (`SupportParams::is_flat`): a chair pushed against the wall, seen from the front, shows
+//! its back as one plane with the wall just behind, and is no window.
 //!
 //! So, on a horizontal axis where the anchor view's points form one plane facing it
 //! (interquartile range at most `planar_iqr` and at most a quarter of that on both other
@@ -57,9 +57,8 @@ fn quartiles(points: &[Point3<f64>], a: usize) -> (f64, f64, f64) {
 /// ring of width `margin` around its footprint and between 1 cm and `planar_max_depth`
 /// behind it (on the `sign` side), the `layer`-thick slice holding the most points, if it
 /// holds at least `min_points` and reaches past the footprint sideways at the footprint's
-/// height; its
-/// median coordinate. The densest slice, not the nearest: the plane's own noisy fringe
-/// shows up just behind it, but a wall around an object is much larger than that fringe.
+/// height; its median coordinate. The densest slice, not the nearest: the plane's own noisy
+/// fringe shows up just behind it, but a wall around an object is much larger than that.
 fn densest_layer(slab: &Aabb, context: &[Point3<f64>], (axis, sign): (usize, f64), p: &SupportParams) -> Option<f64> {
     let others = [(axis + 1) % 3, (axis + 2) % 3];
     let front = slab.min[axis];
