@@ -5,7 +5,7 @@
 //! [`tile_scales`] tells which frames a plan can take from their previews.
 
 use super::plan::{grid_starts, GridSpec};
-use super::render::{encode_jpeg, resize_to_limit, StitchOptions};
+use super::render::{encode_jpeg, grid_scale, resize_to_limit, StitchOptions};
 use anyhow::{Context, Result};
 use image::RgbImage;
 use rayon::prelude::*;
@@ -46,7 +46,8 @@ pub fn make_preview(img: &RgbImage) -> Result<Vec<u8>> {
 }
 
 /// The scale each frame is drawn at when frames of sizes `dims` fill the grids `specs` in
-/// order (as [`super::render::render_grid`] computes it). Frames beyond the plan get 1.
+/// order ([`grid_scale`], as [`super::render::render_grid`] draws them). Frames beyond
+/// the plan get 1.
 pub fn tile_scales(dims: &[(u32, u32)], specs: &[GridSpec], opts: &StitchOptions) -> Vec<f64> {
     let mut out = vec![1.0; dims.len()];
     for (spec, start) in specs.iter().zip(grid_starts(specs)) {
@@ -56,10 +57,7 @@ pub fn tile_scales(dims: &[(u32, u32)], specs: &[GridSpec], opts: &StitchOptions
         }
         let cell_w = dims[start..end].iter().map(|d| d.0).max().unwrap_or(1);
         let cell_h = dims[start..end].iter().map(|d| d.1).max().unwrap_or(1);
-        let long = (u64::from(cell_w) * u64::from(spec.cols)).max(u64::from(cell_h) * u64::from(spec.rows)).max(1);
-        let s = f64::from(opts.max_side.max(1)) / long as f64;
-        let s = if opts.upscale { s } else { s.min(1.0) };
-        out[start..end].fill(s);
+        out[start..end].fill(grid_scale(cell_w, cell_h, spec, opts));
     }
     out
 }

@@ -157,6 +157,19 @@ pub fn resize_to_limit_with(
     Ok(dst)
 }
 
+/// The scale at which a `spec` grid of `cell_w` x `cell_h` cells is drawn: its longer side
+/// becomes `opts.max_side` (never above 1 unless `opts.upscale`).
+pub fn grid_scale(cell_w: u32, cell_h: u32, spec: &GridSpec, opts: &StitchOptions) -> f64 {
+    let full_w = u64::from(cell_w) * u64::from(spec.cols);
+    let full_h = u64::from(cell_h) * u64::from(spec.rows);
+    let s = f64::from(opts.max_side.max(1)) / full_w.max(full_h).max(1) as f64;
+    if opts.upscale {
+        s
+    } else {
+        s.min(1.0)
+    }
+}
+
 /// Render one grid: place `tiles` row-major in a `spec.rows` x `spec.cols` grid whose cells
 /// are as large as the largest tile, scale it so the longer side is `opts.max_side`, and
 /// draw each tile's id at its top-left corner.
@@ -198,8 +211,7 @@ pub fn render_grid_with_placements(
     }
     let full_w = u64::from(cell_w) * u64::from(spec.cols);
     let full_h = u64::from(cell_h) * u64::from(spec.rows);
-    let s = f64::from(opts.max_side.max(1)) / full_w.max(full_h) as f64;
-    let s = if opts.upscale { s } else { s.min(1.0) };
+    let s = grid_scale(cell_w, cell_h, spec, opts);
     let out_w = ((full_w as f64 * s).round() as u32).max(1);
     let out_h = ((full_h as f64 * s).round() as u32).max(1);
     let mut out = RgbImage::from_pixel(out_w, out_h, image::Rgb(opts.background));
