@@ -14,9 +14,10 @@ use std::time::Instant;
 use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
-use crate::geometry::ensemble::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame};
+use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
+use crate::geometry::ensemble::{chamfer_decisions, find_views, fuse_clouds, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{snap_planar_to_wall, Aabb, GeometryParams, Mask};
+use crate::geometry::{cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -69,9 +70,13 @@ struct ViewCloud {
     mask: Mask,
     points: Vec<Point3<f64>>,
     context: Vec<Point3<f64>>,
+    /// Wall patches cut from the points (see [`cut_wall_leaks`]).
+    wall_cuts: Vec<WallCut>,
 }
 
-fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox: [f32; 4], params: &GeometryParams) -> anyhow::Result<ViewCloud> {
+/// `cut_walls`: remove wall patches the mask leaked onto (not for objects that are flat
+/// against a wall: there the wall is the object's own plane).
+fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox: [f32; 4], params: &GeometryParams, cut_walls: bool) -> anyhow::Result<ViewCloud> {
     let mask = seg.segment(&SegmentInput { color: image, depth: &frame.depth, camera: &frame.camera }, bbox)?;
     let points = mask_points(&mask, &frame.camera, &frame.depth, params).map_err(|e| anyhow::anyhow!("{e}"))?;
     let context = if params.support.enabled && !points.is_empty() {
@@ -79,7 +84,8 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
     } else {
         Vec::new()
     };
-    Ok(ViewCloud { mask, points, context })
+    let (points, wall_cuts) = if cut_walls { cut_wall_leaks(&points, &context, &params.support) } else { (points, Vec::new()) };
+    Ok(ViewCloud { mask, points, context, wall_cuts })
 }
 
 /// The anchor's image comes with `choice`; the ensemble views are decoded here.
@@ -88,7 +94,8 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
     let (seg, params, image, bbox) = (g.segmenter.clone(), g.params.geometry.clone(), choice.image.clone(), choice.bbox);
-    let ViewCloud { mask, points: anchor_pts, context: anchor_ctx } = tokio::task::spawn_blocking(move || segment_points(seg.as_ref(), &anchor, &image, bbox, &params))
+    let cut_walls = !g.params.geometry.support.hangs(target_class) && !g.params.geometry.support.is_flat(target_class);
+    let ViewCloud { mask: anchor_mask, points: anchor_pts, context: anchor_ctx, wall_cuts } = tokio::task::spawn_blocking(move || segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls))
         .await
         .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
         .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
@@ -96,7 +103,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         ctx,
         "segmentation",
         json!({"image_id": format!("{:05}", choice.frame_idx), "box": choice.bbox, "segmenter": g.segmenter.name()}),
-        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": mask.width, "height": mask.height, "rle": mask_rle(&mask)}, "pixels": mask.count(), "points": anchor_pts.len()}),
+        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": anchor_mask.width, "height": anchor_mask.height, "rle": mask_rle(&anchor_mask)}, "pixels": anchor_mask.count(), "points": anchor_pts.len(), "wall_cuts": wall_cuts}),
         t,
     )
     .await;
@@ -140,21 +147,50 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
     let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
-    let (fusion, single, support, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
+    let anchor_idx = choice.frame_idx;
+    let (fusion, single, support, votes, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
         let ts = Instant::now();
         let clouds: Vec<(usize, ViewCloud)> = vb
             .par_iter()
             .filter_map(|(i, b, _)| {
                 let img: &Arc<RgbImage> = decoded.get(i)?;
-                segment_points(seg.as_ref(), &sc.frames[*i], img, *b, &params).ok().map(|c| (*i, c))
+                segment_points(seg.as_ref(), &sc.frames[*i], img, *b, &params, cut_walls).ok().map(|c| (*i, c))
             })
             .filter(|(_, c)| !c.points.is_empty())
             .collect();
-        let (other_pts, contexts): (Vec<_>, Vec<_>) = clouds.into_iter().map(|(i, c)| ((i, c.points), (i, c.context))).unzip();
+        let mut other_pts = Vec::with_capacity(clouds.len());
+        let (mut masks, mut contexts) = (Vec::with_capacity(clouds.len()), Vec::with_capacity(clouds.len()));
+        for (i, c) in clouds {
+            other_pts.push((i, c.points));
+            masks.push(c.mask);
+            contexts.push((i, c.context));
+        }
         let segment_ms = ms(ts);
         let tf = Instant::now();
-        let fusion = fuse_views(&anchor_pts, &other_pts, &params);
+        let decisions = chamfer_decisions(&anchor_pts, &other_pts, &params);
+        // Mask votes among the anchor and the kept views: each view's points checked
+        // against the other views' masks.
+        let af = &sc.frames[anchor_idx];
+        let mut voters = vec![MaskView { camera: &af.camera, depth: af.depth.as_ref(), mask: &anchor_mask }];
+        let mut clouds: Vec<&[Point3<f64>]> = vec![&anchor_pts];
+        for (((i, pts), d), m) in other_pts.iter().zip(&decisions).zip(&masks) {
+            if d.kept {
+                voters.push(MaskView { camera: &sc.frames[*i].camera, depth: sc.frames[*i].depth.as_ref(), mask: m });
+                clouds.push(pts);
+            }
+        }
+        let voted: Vec<Vec<Point3<f64>>> = if params.consensus.mask_votes && voters.len() > 1 {
+            mask_votes(&clouds, &voters, &params).iter().zip(&clouds).map(|(k, c)| retain(c, k)).collect()
+        } else {
+            clouds.iter().map(|c| c.to_vec()).collect()
+        };
+        let votes = json!({"voters": voters.len(), "points_before": clouds.iter().map(|c| c.len()).sum::<usize>(), "points_after": voted.iter().map(Vec::len).sum::<usize>(),
+                           "anchor_before": anchor_pts.len(), "anchor_after": voted[0].len()});
+        let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
+        let carve = |pts: &[Point3<f64>]| free_space_votes(pts, &frames, &params);
+        let refs: Vec<&[Point3<f64>]> = voted.iter().map(Vec::as_slice).collect();
+        let fusion = fuse_clouds(anchor_pts.len(), &refs, decisions, params.consensus.free_space.then_some(&carve as _), &params);
         let fuse_ms = ms(tf);
         let tsup = Instant::now();
         // Support completion sees around the anchor and every view the fusion kept.
@@ -164,15 +200,16 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
                 context.extend(c);
             }
         }
-        let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
-        let bulk = median_point(&anchor_pts).unwrap_or_default();
+        // The anchor's points after the votes (all of them when the votes left none).
+        let anchor_kept: &[Point3<f64>] = if voted[0].is_empty() { &anchor_pts } else { &voted[0] };
+        let bulk = median_point(anchor_kept).unwrap_or_default();
         let support = fusion.aabb.map(|b| {
             let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
-            let (b, planar) = if flat { snap_planar_to_wall(&b, &anchor_pts, &context, eye, &params) } else { (b, Vec::new()) };
+            let (b, planar) = if flat { snap_planar_to_wall(&b, anchor_kept, &context, eye, &params) } else { (b, Vec::new()) };
             (b, moved, planar)
         });
         let support_ms = ms(tsup);
-        (fusion, single_view_box(&anchor_pts, &params), support, [segment_ms, fuse_ms, support_ms])
+        (fusion, single_view_box(&anchor_pts, &params), support, votes, [segment_ms, fuse_ms, support_ms])
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
@@ -191,7 +228,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded,
+        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

@@ -123,6 +123,8 @@ pub struct FusionResult {
     pub anchor_points: usize,
     /// Points after union (and fusion voxel downsampling), before outlier removal.
     pub fused_points: usize,
+    /// Points of the union that free-space carving dropped (0 when it did not run).
+    pub carved_points: usize,
     /// Points after outlier removal.
     pub kept_points: usize,
     /// Voxel size (m) finally used on the union (0 = none).
@@ -131,9 +133,8 @@ pub struct FusionResult {
 }
 
 /// Fuse the anchor's points with other views' points (index, points):
-/// 1. chamfer distance of each view to the anchor, both clouds voxel-downsampled by
-///    `params.chamfer_voxel`; drop the view when it exceeds `params.chamfer_threshold`
-///    (or when either cloud is empty);
+/// 1. [`chamfer_decisions`]: drop a view whose chamfer distance to the anchor exceeds
+///    `params.chamfer_threshold` (or when either cloud is empty);
 /// 2. union of the anchor and kept views, downsampled by `params.fusion_voxel` (doubled
 ///    until at most `params.max_fused_points` remain);
 /// 3. statistical outlier removal (`sor_neighbors`, `sor_std_ratio`); 4. AABB.
@@ -142,22 +143,33 @@ pub fn fuse_views(
     others: &[(usize, Vec<Point3<f64>>)],
     params: &GeometryParams,
 ) -> FusionResult {
+    let views = chamfer_decisions(anchor, others, params);
+    let mut clouds: Vec<&[Point3<f64>]> = vec![anchor];
+    clouds.extend(others.iter().zip(&views).filter(|(_, d)| d.kept).map(|((_, p), _)| p.as_slice()));
+    fuse_clouds(anchor.len(), &clouds, views, None, params)
+}
+
+/// Step 1 of [`fuse_views`]: the chamfer distance of each view to the anchor, both clouds
+/// voxel-downsampled by `params.chamfer_voxel`, and whether it passes the threshold.
+pub fn chamfer_decisions(anchor: &[Point3<f64>], others: &[(usize, Vec<Point3<f64>>)], params: &GeometryParams) -> Vec<ViewDecision> {
     let anchor_ds = voxel_downsample(anchor, params.chamfer_voxel);
-    let mut union: Vec<Point3<f64>> = anchor.to_vec();
-    let mut views = Vec::with_capacity(others.len());
-    for (index, pts) in others {
-        let chamfer = chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
-        let kept = chamfer.is_some_and(|c| c <= params.chamfer_threshold);
-        if kept {
-            union.extend_from_slice(pts);
-        }
-        views.push(ViewDecision {
-            index: *index,
-            chamfer,
-            kept,
-            points: pts.len(),
-        });
-    }
+    others
+        .iter()
+        .map(|(index, pts)| {
+            let chamfer = chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
+            ViewDecision { index: *index, chamfer, kept: chamfer.is_some_and(|c| c <= params.chamfer_threshold), points: pts.len() }
+        })
+        .collect()
+}
+
+/// Keep-flags for the points of a fused cloud (see [`super::free_space_votes`]).
+pub type Carve<'a> = &'a (dyn Fn(&[Point3<f64>]) -> Vec<bool> + Sync);
+
+/// Steps 2-4 of [`fuse_views`] on the clouds to fuse (the anchor's and the kept views'):
+/// union, voxel downsampling, then `carve` (when given) drops points before outlier
+/// removal and the box.
+pub fn fuse_clouds(anchor_points: usize, clouds: &[&[Point3<f64>]], views: Vec<ViewDecision>, carve: Option<Carve<'_>>, params: &GeometryParams) -> FusionResult {
+    let union: Vec<Point3<f64>> = clouds.iter().flat_map(|c| c.iter().copied()).collect();
     let mut voxel = params.fusion_voxel;
     let mut fused = voxel_downsample(&union, voxel);
     if params.max_fused_points > 0 && voxel > 0.0 {
@@ -166,6 +178,15 @@ pub fn fuse_views(
         while fused.len() > params.max_fused_points {
             voxel *= 2.0;
             fused = voxel_downsample(&fused, voxel);
+        }
+    }
+    let fused_points = fused.len();
+    let mut carved_points = 0;
+    if let Some(carve) = carve {
+        let keep = carve(&fused);
+        if keep.len() == fused.len() {
+            fused = super::consensus::retain(&fused, &keep);
+            carved_points = fused_points - fused.len();
         }
     }
     let kept = remove_statistical_outliers(&fused, params.sor_neighbors, params.sor_std_ratio);
@@ -179,8 +200,9 @@ pub fn fuse_views(
     FusionResult {
         aabb,
         flattened,
-        anchor_points: anchor.len(),
-        fused_points: fused.len(),
+        anchor_points,
+        fused_points,
+        carved_points,
         kept_points: kept.len(),
         fusion_voxel: voxel.max(0.0),
         views,

@@ -10,6 +10,7 @@
 pub mod boxes;
 pub mod camera;
 pub mod cloud;
+pub mod consensus;
 pub mod ensemble;
 pub mod mask;
 pub mod morph;
@@ -17,20 +18,23 @@ pub mod params;
 pub mod planar;
 pub mod projection;
 pub mod support;
+pub mod walls;
 
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
 pub use cloud::{
     chamfer_distance, neighbour_mean_distances, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
 };
+pub use consensus::{free_space_votes, mask_votes, ConsensusParams, MaskView};
 pub use ensemble::{
-    find_views, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
+    chamfer_decisions, find_views, fuse_clouds, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
     ViewCandidate, ViewDecision,
 };
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
 pub use planar::{snap_planar_to_wall, PlanarSnap};
+pub use walls::{cut_wall_leaks, WallCut};
 pub use support::{context_points, extend_to_support, median_point, SupportExtension, SupportParams};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,

@@ -52,6 +52,8 @@ pub struct GeometryParams {
     /// 0 = off, the default: `support.planar_iqr`, which measures the plane against its wall
     /// in one view, does better on the realistic benchmark).
     pub plane_iqr: f64,
+    /// Multi-view mask votes and free-space carving (ours; see `consensus.rs`).
+    pub consensus: super::ConsensusParams,
     /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
     pub support: super::SupportParams,
 }
@@ -77,6 +79,7 @@ impl Default for GeometryParams {
             fusion_voxel: 0.01,
             max_fused_points: 30_000,
             plane_iqr: 0.0,
+            consensus: super::ConsensusParams::default(),
             support: super::SupportParams::default(),
         }
     }

@@ -199,7 +199,7 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
 
 /// The nearest support layer beyond face (`axis`, `sign`) of `b`: its coordinate on `axis`
 /// and its voxel count.
-fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap: f64, margin: f64, p: &SupportParams) -> Option<(f64, usize)> {
+pub(crate) fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap: f64, margin: f64, p: &SupportParams) -> Option<(f64, usize)> {
     let others = [(axis + 1) % 3, (axis + 2) % 3];
     let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
     // (gap beyond the face, point) for points in range.
@@ -312,8 +312,9 @@ pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], p
 /// up to `max_inside` within the box (noise behind a wall). A support must lie on the
 /// face's side of `bulk` (the object's per-axis median point, see [`median_point`]): the
 /// wall behind a thin picture is inside its noisy box, and only the back face may move
-/// onto it. A vertical face moves further than `max_gap_side` (up to `max_gap_far`)
-/// only when the gap it crosses was never seen empty by the frames in `views`. With
+/// onto it. A vertical face moves out by more than `layer` (up to `max_gap_side`, and
+/// further up to `max_gap_far`) only when the gap it crosses was never seen empty by the
+/// frames in `views`. With
 /// `down` false (an object that hangs on a wall) the bottom face stays. Returns the new box
 /// and the faces that moved.
 pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], down: bool, params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
@@ -331,7 +332,18 @@ pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], view
         let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
         let near_gap = if axis == 2 { p.max_gap_down } else { p.max_gap_side };
         // A near support moves the face out onto it, or back onto it from inside the box.
-        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| (c - face).abs() > 1e-9 && sign * (c - bulk[axis]) > 0.0).map(|(c, n)| (c, n, None));
+        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| (c - face).abs() > 1e-9 && sign * (c - bulk[axis]) > 0.0).and_then(|(c, n)| {
+            // A side gap wider than a layer is crossed only when it was not seen empty
+            // (a lamp standing a hand's width from the wall is not against it).
+            if axis == 2 || sign * (c - face) <= p.layer {
+                return Some((c, n, None));
+            }
+            let mut slab = *b;
+            slab.min[axis] = face.min(c);
+            slab.max[axis] = face.max(c);
+            let free = observed_free_fraction(&slab, views, params);
+            (free <= p.max_free).then_some((c, n, Some(free)))
+        });
         let found = near.or_else(|| {
             // A wall further back, joined only when no frame saw the gap empty.
             if axis == 2 || p.max_gap_far <= p.max_gap_side {

@@ -43,6 +43,9 @@ pub struct DepthSegmenter {
     /// wall, the depth step between them too small), it is grown again admitting only cells
     /// whose colour is within this sum of absolute RGB differences of the seeds' median.
     pub colour_tol: f64,
+    /// Do not grow into depth-edge cells (flying pixels between an object and the surface
+    /// behind it).
+    pub block_edges: bool,
 }
 
 impl Default for DepthSegmenter {
@@ -57,6 +60,7 @@ impl Default for DepthSegmenter {
             max_outside: 0.35,
             max_cells: 200_000,
             colour_tol: 60.0,
+            block_edges: true,
         }
     }
 }
@@ -78,6 +82,8 @@ struct Grid {
     inb: Vec<bool>,
     /// grid rectangle of the box: gx0..gx1, gy0..gy1
     b: [usize; 4],
+    /// Cells on a depth edge (see [`DepthSegmenter::mark_edges`]): never grown into.
+    edge: Vec<bool>,
 }
 
 impl Grid {
@@ -163,7 +169,31 @@ impl DepthSegmenter {
             rgb,
             inb,
             b,
+            edge: vec![false; n],
         })
+    }
+
+    /// Mark the cells whose two opposite neighbours (left/right or above/below) differ in
+    /// depth by more than one growth step: a depth edge. A sensor mixes the two sides of an
+    /// edge into "flying pixels" halfway between, which would otherwise bridge an object
+    /// and the wall behind it in two small steps.
+    fn mark_edges(&self, g: &mut Grid, cell_px: f64) {
+        if !self.block_edges {
+            return;
+        }
+        let (w, h) = (g.w, g.h);
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let z = g.z[i];
+                if z <= 0.0 {
+                    continue;
+                }
+                let lim = (self.step_abs + self.step_rel * z) * cell_px.max(1.0);
+                let differs = |a: usize, b: usize| g.z[a] > 0.0 && g.z[b] > 0.0 && (g.z[a] - g.z[b]).abs() > lim;
+                g.edge[i] = (x > 0 && x + 1 < w && differs(i - 1, i + 1)) || (y > 0 && y + 1 < h && differs(i - w, i + w));
+            }
+        }
     }
 
     /// Depths of the strong, centre-weighted histogram modes inside the box, near to far.
@@ -218,7 +248,7 @@ impl DepthSegmenter {
     fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool], colour: bool) -> Vec<bool> {
         let tol = 0.05 + 0.03 * target;
         let near =
-            |i: usize| g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i];
+            |i: usize| g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i] && !g.edge[i];
         let [bx0, by0, bx1, by1] = g.b;
         let (qx, qy) = ((bx1 - bx0) / 4, (by1 - by0) / 4);
         let mut seeds: Vec<usize> = Vec::new();
@@ -258,7 +288,7 @@ impl DepthSegmenter {
         while let Some(i) = queue.pop_front() {
             let lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
             for j in g.neighbours(i).into_iter().flatten() {
-                if !region[j] && !blocked[j] && g.z[j] > 0.0 && (g.z[j] - g.z[i]).abs() <= lim && like(j) {
+                if !region[j] && !blocked[j] && !g.edge[j] && g.z[j] > 0.0 && (g.z[j] - g.z[i]).abs() <= lim && like(j) {
                     region[j] = true;
                     queue.push_back(j);
                 }
@@ -377,6 +407,20 @@ impl DepthSegmenter {
         label.iter().map(|&l| l != 0 && l == best).collect()
     }
 
+    /// Edge cells with the region on two opposite sides are a crease inside the object (a
+    /// seat's front over its legs), not its outline: they join.
+    fn close_edges(g: &Grid, region: &mut [bool]) {
+        let snapshot = region.to_vec();
+        let (w, h) = (g.w, g.h);
+        for i in (0..region.len()).filter(|&i| g.edge[i] && !snapshot[i]) {
+            let (x, y) = (i % w, i / w);
+            let across = (x > 0 && x + 1 < w && snapshot[i - 1] && snapshot[i + 1]) || (y > 0 && y + 1 < h && snapshot[i - w] && snapshot[i + w]);
+            if across && g.inb[i] {
+                region[i] = true;
+            }
+        }
+    }
+
     /// Close small holes: depth-less cells with at least 3 region neighbours, or whose colour
     /// is close to the region's mean colour and touch it.
     fn fill_holes(g: &Grid, region: &mut [bool]) {
@@ -429,7 +473,7 @@ impl Segmenter for DepthSegmenter {
                 input.depth.height
             );
         }
-        let Some(g) = self.grid(input, bbox) else {
+        let Some(mut g) = self.grid(input, bbox) else {
             return Ok(Mask::new(cw, ch));
         };
         let modes = self.modes(&g);
@@ -438,6 +482,7 @@ impl Segmenter for DepthSegmenter {
             return Ok(Mask::from_box(cw, ch, bbox));
         }
         let cell_px = g.s as f64 * input.depth.width as f64 / cw as f64;
+        self.mark_edges(&mut g, cell_px);
         // Each strong mode's surface is scored by how well it explains a tight box: its
         // extent inside the box should fill the box (an occluder covering part of it does
         // not) and it should stop at the box edges (a wall behind runs on past them).
@@ -455,6 +500,7 @@ impl Segmenter for DepthSegmenter {
         };
         let inside: Vec<bool> = (0..region.len()).map(|i| region[i] && g.inb[i]).collect();
         let mut region = Self::largest_component(&g, &inside);
+        Self::close_edges(&g, &mut region);
         Self::fill_holes(&g, &mut region);
         let mut mask = Mask::new(cw, ch);
         let (bx0, by0, bx1, by1) = (bbox[0].floor(), bbox[1].floor(), bbox[2].ceil(), bbox[3].ceil());
