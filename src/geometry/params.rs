@@ -39,6 +39,10 @@ pub struct GeometryParams {
     /// At most this many anchor points are reprojected per candidate (evenly subsampled).
     pub max_probe_points: usize,
     /// Chamfer threshold in m^2 (sum of the two directional mean squared NN distances).
+    /// The paper uses 0.1; a view that sees more of the object than a partial anchor (a
+    /// close-up of a chair's back) exceeds that, and with the mask votes of `consensus`
+    /// removing what other views' masks deny, 0.5 does better on the realistic benchmark
+    /// (Acc@0.5 64 % at 0.1, 68 % at 0.5 and at 1.0, 68 % with no filter at all).
     pub chamfer_threshold: f64,
     /// Voxel size (m) applied to both clouds before the chamfer distance (0 = off).
     pub chamfer_voxel: f64,
@@ -74,7 +78,7 @@ impl Default for GeometryParams {
             max_views: 7,
             min_visible_fraction: 0.1,
             max_probe_points: 4000,
-            chamfer_threshold: 0.1,
+            chamfer_threshold: 0.5,
             chamfer_voxel: 0.02,
             fusion_voxel: 0.01,
             max_fused_points: 30_000,

@@ -25,7 +25,7 @@ pub struct WallCut {
 }
 
 /// Remove from `points` those within one support layer of a wall that the `context` shows
-/// at a vertical face of their box (or beyond it). A cut that would remove more than half
+/// at a vertical face of their box (or beyond it) and above their top. A cut that would remove more than half
 /// of the points is not made: then the object is the plane (a picture, a door), not a leak.
 pub fn cut_wall_leaks(points: &[Point3<f64>], context: &[Point3<f64>], p: &SupportParams) -> (Vec<Point3<f64>>, Vec<WallCut>) {
     const NAMES: [&str; 3] = ["x", "y", "z"];
@@ -39,6 +39,16 @@ pub fn cut_wall_leaks(points: &[Point3<f64>], context: &[Point3<f64>], p: &Suppo
         let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
         let Some((wall, _)) = find_layer(&b, context, (axis, sign), p.layer, p.margin, p) else { continue };
         if (wall - face).abs() > p.layer {
+            continue;
+        }
+        // A wall rises above what stands against it; the front of the nightstand under a
+        // lamp does not.
+        let other = 1 - axis;
+        let above = context
+            .iter()
+            .filter(|q| (q[axis] - wall).abs() <= p.layer && q[2] > b.max[2] && q[2] <= b.max[2] + p.margin_far && q[other] >= b.min[other] - p.margin && q[other] <= b.max[other] + p.margin)
+            .count();
+        if above < p.min_points {
             continue;
         }
         let keep: Vec<Point3<f64>> = pts.iter().filter(|q| sign * (q[axis] - wall) < -p.layer).copied().collect();
@@ -89,6 +99,10 @@ mod tests {
         assert!((b.min[1] - real.min[1]).abs() < 1e-9, "{b:?}");
         // Only the top's strip within a layer of the wall went with it.
         assert!(b.min[0] > 0.0 && b.min[0] <= 0.06, "{b:?}");
+        // A vertical surface that ends below the box's top (the front of a nightstand under a
+        // lamp) is no wall.
+        let low: Vec<Point3<f64>> = ctx.iter().filter(|q| q.z < 0.45).copied().collect();
+        assert!(cut_wall_leaks(&leaky, &low, &SupportParams::default()).1.is_empty());
         // Without context nothing is cut.
         assert_eq!(cut_wall_leaks(&leaky, &[], &SupportParams::default()).0.len(), leaky.len());
     }
