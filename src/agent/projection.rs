@@ -17,7 +17,7 @@ use super::{ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use crate::geometry::ensemble::{chamfer_decisions, find_views, fuse_clouds, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
+use crate::geometry::{voxel_downsample, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -173,20 +173,23 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         // against the other views' masks.
         let af = &sc.frames[anchor_idx];
         let mut voters = vec![MaskView { camera: &af.camera, depth: af.depth.as_ref(), mask: &anchor_mask }];
-        let mut clouds: Vec<&[Point3<f64>]> = vec![&anchor_pts];
+        // Each cloud at the fusion voxel first: the union is downsampled to it anyway, and
+        // the votes cost one projection per point and view.
+        let mut owned: Vec<Vec<Point3<f64>>> = vec![voxel_downsample(&anchor_pts, params.fusion_voxel)];
         for (((i, pts), d), m) in other_pts.iter().zip(&decisions).zip(&masks) {
             if d.kept {
                 voters.push(MaskView { camera: &sc.frames[*i].camera, depth: sc.frames[*i].depth.as_ref(), mask: m });
-                clouds.push(pts);
+                owned.push(voxel_downsample(pts, params.fusion_voxel));
             }
         }
+        let clouds: Vec<&[Point3<f64>]> = owned.iter().map(Vec::as_slice).collect();
         let voted: Vec<Vec<Point3<f64>>> = if params.consensus.mask_votes && voters.len() > 1 {
             mask_votes(&clouds, &voters, &params).iter().zip(&clouds).map(|(k, c)| retain(c, k)).collect()
         } else {
             clouds.iter().map(|c| c.to_vec()).collect()
         };
-        let votes = json!({"voters": voters.len(), "points_before": clouds.iter().map(|c| c.len()).sum::<usize>(), "points_after": voted.iter().map(Vec::len).sum::<usize>(),
-                           "anchor_before": anchor_pts.len(), "anchor_after": voted[0].len()});
+        let votes = json!({"ms": ms(tf), "voters": voters.len(), "points_before": clouds.iter().map(|c| c.len()).sum::<usize>(), "points_after": voted.iter().map(Vec::len).sum::<usize>(),
+                           "anchor_before": clouds[0].len(), "anchor_after": voted[0].len()});
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
         let carve = |pts: &[Point3<f64>]| free_space_votes(pts, &frames, &params);
         let refs: Vec<&[Point3<f64>]> = voted.iter().map(Vec::as_slice).collect();

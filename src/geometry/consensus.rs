@@ -8,7 +8,7 @@
 //!
 //! - [`mask_votes`]: every point of one view's cloud is projected into the other segmented
 //!   views. A view where the point lies on the measured surface votes for it when its mask
-//!   (slightly dilated) covers the pixel and against it when not; a view that sees past the
+//!   (with a tolerance of a few pixels) covers the pixel and against it when not; a view that sees past the
 //!   point votes against it; a view where it is hidden or out of frame abstains. The point's
 //!   own view does not vote. A point is dropped when the votes against outnumber the votes
 //!   for.
@@ -29,9 +29,10 @@ use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
 pub struct ConsensusParams {
     /// Run [`mask_votes`] across the anchor and the views the chamfer test kept.
     pub mask_votes: bool,
-    /// Side of the square dilation applied to each voting mask, in pixels at the geometry's
-    /// `erode_reference_width` (scaled like the erosion kernel): tolerance for pose error
-    /// and mask borders.
+    /// Tolerance (pixels at the geometry's `erode_reference_width`, scaled like the erosion
+    /// kernel) around each voting mask for pose error and mask borders: the mask is read
+    /// in blocks of half this side, a pixel counting as covered when a block next to its
+    /// own holds the mask.
     pub mask_dilate: u32,
     /// Run [`free_space_votes`] on the fused cloud with every usable frame.
     pub free_space: bool,
@@ -128,12 +129,49 @@ impl<'a> Probe<'a> {
     }
 }
 
+/// A mask coarsened into square blocks: a pixel counts as covered when its block or one
+/// of the eight around it holds a mask pixel (a dilation by one to two block sides, built
+/// in one pass over the mask).
+struct CoarseMask {
+    block: u32,
+    w: usize,
+    h: usize,
+    occupied: Vec<bool>,
+}
+
+impl CoarseMask {
+    fn new(mask: &Mask, block: u32) -> Self {
+        let block = block.max(1);
+        let w = mask.width.div_ceil(block) as usize;
+        let h = mask.height.div_ceil(block) as usize;
+        let mut occupied = vec![false; w * h];
+        for y in 0..mask.height as usize {
+            let row = &mask.data[y * mask.width as usize..(y + 1) * mask.width as usize];
+            let by = y / block as usize;
+            for (x, _) in row.iter().enumerate().filter(|(_, &m)| m) {
+                occupied[by * w + x / block as usize] = true;
+            }
+        }
+        Self { block, w, h, occupied }
+    }
+
+    fn covers(&self, x: u32, y: u32) -> bool {
+        let (bx, by) = ((x / self.block) as i64, (y / self.block) as i64);
+        (-1..=1).any(|dy| {
+            (-1..=1).any(|dx| {
+                let (nx, ny) = (bx + dx, by + dy);
+                nx >= 0 && ny >= 0 && (nx as usize) < self.w && (ny as usize) < self.h && self.occupied[ny as usize * self.w + nx as usize]
+            })
+        })
+    }
+}
+
 /// Mask consensus. `clouds[i]` are the points back-projected from `views[i]`'s mask.
 /// Returns, per cloud, which points to keep (see the module documentation).
 pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &GeometryParams) -> Vec<Vec<bool>> {
-    let dilated: Vec<Mask> = views
+    let coarse: Vec<CoarseMask> = views
         .iter()
-        .map(|v| super::morph::dilate_square(v.mask, scaled_kernel(params, params.consensus.mask_dilate, v.mask.width)))
+        .map(|v| CoarseMask::new(v.mask, scaled_kernel(params, params.consensus.mask_dilate, v.mask.width) / 2))
         .collect();
     let probes: Vec<Option<Probe<'_>>> = views.iter().map(|v| Probe::new(v.camera, v.depth)).collect();
     clouds
@@ -146,7 +184,7 @@ pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &Ge
                     for (k, probe) in probes.iter().enumerate() {
                         let Some(probe) = probe.as_ref().filter(|_| k != own) else { continue };
                         match probe.look(p, params) {
-                            Seen::OnSurface(x, y) if dilated[k].get(x, y) => pro += 1,
+                            Seen::OnSurface(x, y) if coarse[k].covers(x, y) => pro += 1,
                             Seen::OnSurface(..) | Seen::Through => con += 1,
                             Seen::Nothing => {}
                         }

@@ -92,6 +92,8 @@ pub struct SupportParams {
     /// Largest depth (m) from such a plane to the wall behind it that makes the two one
     /// object (a door, a window, a box pushed against the wall).
     pub planar_max_depth: f64,
+    /// Cut the patch of a wall an object's mask leaked onto (see [`super::walls`]).
+    pub wall_cut: bool,
 }
 
 impl SupportParams {
@@ -139,6 +141,7 @@ impl Default for SupportParams {
             flat: ["door", "curtain", "blinds", "shade", "radiator"].map(String::from).to_vec(),
             planar_iqr: 0.05,
             planar_max_depth: 0.15,
+            wall_cut: true,
         }
     }
 }
@@ -487,6 +490,24 @@ mod tests {
         let mut near_only = gp();
         near_only.support.max_gap_far = 0.0;
         assert_eq!(extend_to_support(&b, b.center(), &wall, &hidden, true, &near_only).0, b);
+    }
+
+    #[test]
+    fn a_near_side_gap_seen_empty_is_not_crossed() {
+        // A lamp 9 cm in front of the wall y = 0 (its back face at y = 0.09).
+        let b = Aabb::new([1.0, 0.09, 0.55], [1.3, 0.35, 0.95]);
+        let mut wall = plane(1, 0.0, (0, 0.8, 1.5), (2, 0.4, 1.2), 0.02);
+        wall.retain(|q| !(q.x > 1.0 && q.x < 1.3 && q.z > 0.55 && q.z < 0.95));
+        // Unobserved gap: the back face moves onto the wall.
+        let (e, _) = extend_to_support(&b, b.center(), &wall, &[], true, &gp());
+        assert!(e.min[1].abs() < 1e-9, "{e:?}");
+        // A frame looking along the wall through the gap reads the far end of the room.
+        let side = view([-1.0, 0.045, 0.75], [1.15, 0.045, 0.75], 6.0);
+        let (e, moved) = extend_to_support(&b, b.center(), &wall, &[(&side.0, &side.1)], true, &gp());
+        assert_eq!(e.min[1], 0.09, "{moved:?}");
+        // A gap within one layer is noise and is closed whatever the frames saw.
+        let touching = Aabb::new([1.0, 0.03, 0.55], [1.3, 0.35, 0.95]);
+        assert!(extend_to_support(&touching, touching.center(), &wall, &[(&side.0, &side.1)], true, &gp()).0.min[1].abs() < 1e-9);
     }
 
     #[test]

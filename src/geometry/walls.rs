@@ -31,7 +31,7 @@ pub fn cut_wall_leaks(points: &[Point3<f64>], context: &[Point3<f64>], p: &Suppo
     const NAMES: [&str; 3] = ["x", "y", "z"];
     let mut pts = points.to_vec();
     let mut cuts = Vec::new();
-    if !p.enabled || context.is_empty() {
+    if !p.enabled || !p.wall_cut || context.is_empty() {
         return (pts, cuts);
     }
     for (axis, sign) in [(0usize, -1.0f64), (0, 1.0), (1, -1.0), (1, 1.0)] {
@@ -103,7 +103,9 @@ mod tests {
         // lamp) is no wall.
         let low: Vec<Point3<f64>> = ctx.iter().filter(|q| q.z < 0.45).copied().collect();
         assert!(cut_wall_leaks(&leaky, &low, &SupportParams::default()).1.is_empty());
-        // Without context nothing is cut.
+        // Switched off, or without context, nothing is cut.
+        let off = SupportParams { wall_cut: false, ..SupportParams::default() };
+        assert!(cut_wall_leaks(&leaky, &ctx, &off).1.is_empty());
         assert_eq!(cut_wall_leaks(&leaky, &[], &SupportParams::default()).0.len(), leaky.len());
     }
 

@@ -569,4 +569,33 @@ mod tests {
         let m = depth_only.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
         assert!(m.iou(&bin) < 0.2, "depth only: IoU {}", m.iou(&bin));
     }
+
+    #[test]
+    fn flying_pixels_do_not_bridge_an_object_to_the_wall_behind() {
+        // A grey block at 2.0 m in front of a grey wall at 2.1 m (a step larger than one
+        // growth step, so only the sensor's mixed pixels around its outline join the two).
+        let color = RgbImage::from_pixel(S, S, Rgb([140, 140, 140]));
+        let mut depth = vec![2100u16; (S * S) as usize];
+        let mut block = Mask::new(S, S);
+        for y in 29..=50u32 {
+            for x in 29..=50u32 {
+                let ring = x == 29 || x == 50 || y == 29 || y == 50;
+                depth[(y * S + x) as usize] = if ring { 2050 } else { 2000 };
+                if !ring {
+                    block.set(x, y, true);
+                }
+            }
+        }
+        let depth = DepthMap::new(S, S, depth);
+        let k = Intrinsics { fx: 80.0, fy: 80.0, cx: 39.5, cy: 39.5, width: S, height: S };
+        let pose = look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z());
+        let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+        let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+        // A loose box: the wall shows in its border.
+        let bbox = [26.0, 26.0, 54.0, 54.0];
+        let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
+        assert!(m.iou(&block) > 0.9, "IoU {}", m.iou(&block));
+        let bridged = DepthSegmenter { block_edges: false, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
+        assert!(bridged.iou(&block) < m.iou(&block), "without edge blocking: IoU {}", bridged.iou(&block));
+    }
 }
