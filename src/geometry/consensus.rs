@@ -38,6 +38,9 @@ pub struct ConsensusParams {
     pub free_space: bool,
     /// Frames that must see past a point before it can be dropped.
     pub min_seen_through: usize,
+    /// At most this many of the frames that see the points' box are used (evenly spread
+    /// over the scan; 0 = all): the cost is one projection per point and frame.
+    pub max_carve_frames: usize,
 }
 
 impl Default for ConsensusParams {
@@ -47,6 +50,7 @@ impl Default for ConsensusParams {
             mask_dilate: 15,
             free_space: true,
             min_seen_through: 2,
+            max_carve_frames: 20,
         }
     }
 }
@@ -196,13 +200,25 @@ pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &Ge
         .collect()
 }
 
-/// Free-space carving of `points` with every frame in `frames` (camera, depth). Frames that
-/// cannot see the points' box at all are skipped up front. Returns which points to keep.
+/// Free-space carving of `points` with the frames in `frames` (camera, depth). Frames that
+/// cannot see the points' box at all are skipped up front, and at most
+/// `consensus.max_carve_frames` of the rest are used. Returns which points to keep.
 pub fn free_space_votes(points: &[Point3<f64>], frames: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> Vec<bool> {
     let Some(bbox) = Aabb::from_points(points) else {
         return Vec::new();
     };
-    let probes: Vec<Probe<'_>> = frames.iter().filter_map(|(c, d)| Probe::new(c, d)).filter(|p| sees_box(p, &bbox)).collect();
+    let mut probes: Vec<Probe<'_>> = frames.iter().filter_map(|(c, d)| Probe::new(c, d)).filter(|p| sees_box(p, &bbox)).collect();
+    let cap = params.consensus.max_carve_frames;
+    if cap > 0 && probes.len() > cap {
+        let n = probes.len();
+        let picked: Vec<usize> = (0..cap).map(|k| k * n / cap).collect();
+        let mut k = 0;
+        probes.retain(|_| {
+            let keep = picked.binary_search(&k).is_ok();
+            k += 1;
+            keep
+        });
+    }
     let need = params.consensus.min_seen_through.max(1);
     points
         .par_iter()

@@ -3,7 +3,9 @@
 //! Pipeline used by the agent (paper Sec. 3.4, with reprojection instead of image matching):
 //! [`mask_points`] (erode + largest components + back-project) on the anchor view →
 //! [`find_views`] over the other frames → the agent segments each returned view →
-//! [`mask_points`] per view → [`fuse_views`] (chamfer filter, union, outlier removal, AABB) → [`extend_to_support`]
+//! [`mask_points`] and [`cut_wall_leaks`] per view → [`chamfer_decisions`] → [`mask_votes`]
+//! among the kept views → [`fuse_clouds`] (union, [`free_space_votes`], outlier removal,
+//! AABB; [`fuse_views`] is the paper's version of these steps) → [`extend_to_support`]
 //! (faces moved through unseen space onto the floor or wall the object rests on; ours) →
 //! [`snap_planar_to_wall`] (a flat object's depth measured against its wall in one view; ours).
 
