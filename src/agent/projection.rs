@@ -2,7 +2,9 @@
 //! box is segmented, the mask back-projected; other views that see those points are found
 //! by reprojection (our replacement for image matching), a box is segmented in each (the
 //! cached detection of the class that best overlaps the reprojected footprint, else the
-//! footprint's own box), and the views that agree (chamfer filter) are fused.
+//! footprint's own box), and the views that agree (chamfer filter) are fused. Before the
+//! union, each kept view's points are checked against the other views' masks, and the
+//! union against the depth of the frames that see it (ours: `geometry::consensus`).
 
 use image::RgbImage;
 use nalgebra::Point3;
@@ -169,6 +171,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         let segment_ms = ms(ts);
         let tf = Instant::now();
         let decisions = chamfer_decisions(&anchor_pts, &other_pts, &params);
+        let tv = Instant::now();
         // Mask votes among the anchor and the kept views: each view's points checked
         // against the other views' masks.
         let af = &sc.frames[anchor_idx];
@@ -188,7 +191,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         } else {
             clouds.iter().map(|c| c.to_vec()).collect()
         };
-        let votes = json!({"ms": ms(tf), "voters": voters.len(), "points_before": clouds.iter().map(|c| c.len()).sum::<usize>(), "points_after": voted.iter().map(Vec::len).sum::<usize>(),
+        let votes = json!({"ms": ms(tv), "voters": voters.len(), "points_before": clouds.iter().map(|c| c.len()).sum::<usize>(), "points_after": voted.iter().map(Vec::len).sum::<usize>(),
                            "anchor_before": clouds[0].len(), "anchor_after": voted[0].len()});
         let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
         let carve = |pts: &[Point3<f64>]| free_space_votes(pts, &frames, &params);
