@@ -44,7 +44,9 @@ pub struct DepthSegmenter {
     /// whose colour is within this sum of absolute RGB differences of the seeds' median.
     pub colour_tol: f64,
     /// Do not grow into depth-edge cells (flying pixels between an object and the surface
-    /// behind it).
+    /// behind it). Off by default: it took the realistic benchmark from 56.7 % to 64 %
+    /// Acc@0.5 in its first form, but cost small noise-free scenes (320x240) a fifth of
+    /// their Acc@0.25 even in its current, stricter form (0.98 -> 0.82).
     pub block_edges: bool,
 }
 
@@ -60,7 +62,7 @@ impl Default for DepthSegmenter {
             max_outside: 0.35,
             max_cells: 200_000,
             colour_tol: 60.0,
-            block_edges: true,
+            block_edges: false,
         }
     }
 }
@@ -174,7 +176,8 @@ impl DepthSegmenter {
     }
 
     /// Mark the cells whose two opposite neighbours (left/right or above/below) differ in
-    /// depth by more than one growth step: a depth edge. A sensor mixes the two sides of an
+    /// depth by more than one growth step while the cell's own depth lies between them,
+    /// at least a fifth of the gap (and 1 cm) from each: a mixed pixel on a depth edge. A sensor mixes the two sides of an
     /// edge into "flying pixels" halfway between, which would otherwise bridge an object
     /// and the wall behind it in two small steps.
     fn mark_edges(&self, g: &mut Grid, cell_px: f64) {
@@ -190,8 +193,14 @@ impl DepthSegmenter {
                     continue;
                 }
                 let lim = (self.step_abs + self.step_rel * z) * cell_px.max(1.0);
-                let differs = |a: usize, b: usize| g.z[a] > 0.0 && g.z[b] > 0.0 && (g.z[a] - g.z[b]).abs() > lim;
-                g.edge[i] = (x > 0 && x + 1 < w && differs(i - 1, i + 1)) || (y > 0 && y + 1 < h && differs(i - w, i + w));
+                // A mixed pixel: its neighbours differ by more than a step and it lies
+                // between them, clear of both (an object's own outline cell sits on one side).
+                let mixed = |a: usize, b: usize| {
+                    let (za, zb) = (g.z[a], g.z[b]);
+                    let gap = (zb - za).abs();
+                    za > 0.0 && zb > 0.0 && gap > lim && (z - za) * (zb - z) > 0.0 && (z - za).abs().min((zb - z).abs()) > (0.2 * gap).max(0.01)
+                };
+                g.edge[i] = (x > 0 && x + 1 < w && mixed(i - 1, i + 1)) || (y > 0 && y + 1 < h && mixed(i - w, i + w));
             }
         }
     }
@@ -593,7 +602,7 @@ mod tests {
         let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
         // A loose box: the wall shows in its border.
         let bbox = [26.0, 26.0, 54.0, 54.0];
-        let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
+        let m = DepthSegmenter { block_edges: true, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
         assert!(m.iou(&block) > 0.9, "IoU {}", m.iou(&block));
         let bridged = DepthSegmenter { block_edges: false, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
         assert!(bridged.iou(&block) < m.iou(&block), "without edge blocking: IoU {}", bridged.iou(&block));
