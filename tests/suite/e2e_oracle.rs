@@ -191,9 +191,9 @@ fn oracle_pipeline_grounds_synthetic_scenes_over_http() {
         .filter(|l| !l.contains("\"failure_stage\":null"))
         .take(10)
         .collect();
-    // Issue 8's bar for these scenes is Acc@0.25 >= 0.9. Measured: 0.97 / 0.84
-    // (Acc@0.25 / Acc@0.5); the remaining misses are a bed and a door seen only in part by
-    // the 14-frame path (see docs/benchmark-e2e.md for the realistic-noise figures).
+    // Issue 8's bar for these scenes is Acc@0.25 >= 0.9. Measured: 0.99 / 0.88
+    // (Acc@0.25 / Acc@0.5, measured 2026-11-23; docs/benchmark-e2e.md has the
+    // realistic-noise figures).
     println!("e2e: Acc@0.25 {acc25:.3}, Acc@0.5 {acc05:.3} over {n_queries} queries");
     const FLOOR_025: f64 = 0.9;
     const FLOOR_05: f64 = 0.75;
