@@ -141,3 +141,32 @@ impl Config {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Config, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    #[test]
+    fn a_misspelt_nested_key_is_an_error_naming_it() {
+        let err = parse("[agent.geometry.consensus]\nmask_vote = false\n").err().map(|e| e.to_string());
+        let msg = err.unwrap_or_default();
+        assert!(msg.contains("mask_vote"), "{msg}");
+        for text in ["[agent]\nimage_limit = 3\nbogus = 1\n", "[agent.geometry.support]\nwal_cut = false\n"] {
+            assert!(parse(text).is_err(), "accepted {text:?}");
+        }
+    }
+
+    #[test]
+    fn correct_nested_keys_are_read() {
+        let cfg = parse("workers = 3\n[agent]\nimage_limit = 5\n[agent.geometry.consensus]\nmask_votes = false\n[agent.geometry.support]\nwall_cut = false\n")
+            .expect("valid config");
+        assert_eq!(cfg.workers, 3);
+        assert_eq!(cfg.agent.image_limit, 5);
+        assert!(!cfg.agent.geometry.consensus.mask_votes);
+        assert!(!cfg.agent.geometry.support.wall_cut);
+    }
+}

@@ -29,7 +29,7 @@ use crate::vlm::{CallBudget, VlmClient, VlmError};
 
 /// Tunables of the method (defaults: REFERENCE-PARAMS.md).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AgentParams {
     /// Soft image limit L of dynamic stitching.
     pub image_limit: usize,

@@ -25,7 +25,7 @@ use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
 
 /// Settings of the multi-view checks.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ConsensusParams {
     /// Run [`mask_votes`] across the anchor and the views the chamfer test kept.
     pub mask_votes: bool,

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 /// Defaults follow REFERENCE-PARAMS.md ("Segmentation and projection"); the view-finding
 /// values are our own (we reproject through depth and poses instead of matching images).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct GeometryParams {
     /// Side of the square erosion kernel in pixels at `erode_reference_width` (odd; 0 or 1
     /// disables erosion). Paper: 15, on ScanNet's 1296-pixel-wide colour frames.

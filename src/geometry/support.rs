@@ -35,7 +35,7 @@ use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
 
 /// Settings of [`extend_to_support`] and [`context_points`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SupportParams {
     /// Off: the box is the fused points' box, as in the paper.
     pub enabled: bool,

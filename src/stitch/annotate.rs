@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 /// Settings for [`annotate_instances`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct AnnotateOptions {
     /// Resize so the longer side is this many pixels (`None`: keep the frame's size).
     pub max_side: Option<u32>,

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 /// Settings for stitching and encoding (per VLM backend).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct StitchOptions {
     /// Longer side of every stitched image after resizing, in pixels.
     pub max_side: u32,

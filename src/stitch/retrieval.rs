@@ -78,7 +78,7 @@ pub struct RetrievalItem {
 
 /// Settings of the generator.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct GeneratorOptions {
     /// Block side as a fraction of the image's shorter side.
     pub block_frac: f32,

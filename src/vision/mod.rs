@@ -40,7 +40,7 @@ pub struct Detection {
 
 /// Settings shared by every vision component (file section `[vision]`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct VisionConfig {
     /// Detector spec (`GROUNDER_DETECTOR`), e.g. "centernet", "yolo:/m.onnx", "oracle".
     pub detector: String,
