@@ -19,6 +19,7 @@ pub mod metrics;
 pub mod plot;
 pub mod report;
 pub mod runner;
+pub mod summary;
 pub mod trace;
 pub mod oracle_vlm;
 pub mod oracle_vlm_answer;

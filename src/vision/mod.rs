@@ -214,14 +214,15 @@ pub fn build_detector(spec: &str, cfg: &VisionConfig) -> Result<Arc<dyn Detector
     })
 }
 
-/// Build a segmenter from a spec: "depth", "box", "sam:encoder.onnx,decoder.onnx".
+/// Build a segmenter from a spec: "depth" (options: "depth:edges=on"), "box",
+/// "sam:encoder.onnx,decoder.onnx".
 pub fn build_segmenter(spec: &str, cfg: &VisionConfig) -> Result<Arc<dyn Segmenter>> {
     let (kind, arg) = split_spec(spec);
     if let Some(p) = &cfg.ort_dylib {
         runtime::set_configured_path(Some(p.clone()));
     }
     Ok(match kind {
-        "depth" => Arc::new(depth_seg::DepthSegmenter::default()),
+        "depth" => Arc::new(depth_seg::DepthSegmenter::from_spec(arg)?),
         "box" => Arc::new(box_seg::BoxSegmenter),
         "sam" => {
             let Some((enc, dec)) = arg.split_once(',') else {

@@ -1,0 +1,93 @@
+//! Operations on a grid region: its extent in the box, its largest component, and the
+//! edge creases and holes closed after growth.
+
+use super::{DepthSegmenter, Grid};
+
+impl DepthSegmenter {
+    /// Share of the box that the bounding rectangle of the region's in-box cells covers
+    /// (1 when the surface reaches all four box edges).
+    pub(super) fn extent_fill(g: &Grid, region: &[bool]) -> f64 {
+        let mut r = [usize::MAX, usize::MAX, 0, 0];
+        for i in (0..region.len()).filter(|&i| region[i] && g.inb[i]) {
+            let (x, y) = (i % g.w, i / g.w);
+            r = [r[0].min(x), r[1].min(y), r[2].max(x + 1), r[3].max(y + 1)];
+        }
+        if r[0] >= r[2] {
+            return 0.0;
+        }
+        let [bx0, by0, bx1, by1] = g.b;
+        ((r[2] - r[0]) * (r[3] - r[1])) as f64 / ((bx1 - bx0) * (by1 - by0)).max(1) as f64
+    }
+
+    /// Keep the largest 4-connected component of `region`.
+    pub(super) fn largest_component(g: &Grid, region: &[bool]) -> Vec<bool> {
+        let mut label = vec![0u32; region.len()];
+        let (mut best, mut best_n, mut next) = (0u32, 0usize, 0u32);
+        for start in 0..region.len() {
+            if !region[start] || label[start] != 0 {
+                continue;
+            }
+            next += 1;
+            let mut n = 0;
+            let mut stack = vec![start];
+            label[start] = next;
+            while let Some(i) = stack.pop() {
+                n += 1;
+                for j in g.neighbours(i).into_iter().flatten() {
+                    if region[j] && label[j] == 0 {
+                        label[j] = next;
+                        stack.push(j);
+                    }
+                }
+            }
+            if n > best_n {
+                best_n = n;
+                best = next;
+            }
+        }
+        label.iter().map(|&l| l != 0 && l == best).collect()
+    }
+
+    /// Edge cells with the region on two opposite sides are a crease inside the object (a
+    /// seat's front over its legs), not its outline: they join.
+    pub(super) fn close_edges(g: &Grid, region: &mut [bool]) {
+        let snapshot = region.to_vec();
+        let (w, h) = (g.w, g.h);
+        for i in (0..region.len()).filter(|&i| g.edge[i] && !snapshot[i] && g.inb[i]) {
+            let (x, y) = (i % w, i / w);
+            if (x > 0 && x + 1 < w && snapshot[i - 1] && snapshot[i + 1]) || (y > 0 && y + 1 < h && snapshot[i - w] && snapshot[i + w]) {
+                region[i] = true;
+            }
+        }
+    }
+
+    /// Close small holes: depth-less cells with at least 3 region neighbours, or whose colour
+    /// is close to the region's mean colour and touch it.
+    pub(super) fn fill_holes(g: &Grid, region: &mut [bool]) {
+        let n = region.iter().filter(|&&b| b).count().max(1) as f64;
+        let mut mean = [0.0f64; 3];
+        for i in (0..region.len()).filter(|&i| region[i]) {
+            for c in 0..3 {
+                mean[c] += g.rgb[i][c] as f64 / n;
+            }
+        }
+        for _ in 0..3 {
+            let snapshot = region.to_vec();
+            for i in 0..region.len() {
+                if snapshot[i] || g.z[i] > 0.0 || !g.inb[i] {
+                    continue;
+                }
+                let k = g
+                    .neighbours(i)
+                    .into_iter()
+                    .flatten()
+                    .filter(|&j| snapshot[j])
+                    .count();
+                let dc: f64 = (0..3).map(|c| (g.rgb[i][c] as f64 - mean[c]).abs()).sum();
+                if k >= 3 || (k >= 1 && dc < 45.0) {
+                    region[i] = true;
+                }
+            }
+        }
+    }
+}

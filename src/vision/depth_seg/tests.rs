@@ -1,0 +1,108 @@
+use super::*;
+use crate::geometry::camera::look_at_pose;
+use crate::geometry::{DepthMap, FrameCamera, Intrinsics};
+use image::{Rgb, RgbImage};
+use nalgebra::{Matrix4, Point3, Vector3};
+
+const S: u32 = 80;
+
+/// A camera looking level along +x at a wall 3.1 m away (grey). Box [30, 30, 50, 50]:
+/// a dark bin fills its right 60 % at 3.03 m (a depth step to the wall within the growth
+/// limit) and leans into the wall at its top; a white bed at 2.0 m covers the box's left
+/// 40 % and a little beyond.
+fn scene() -> (RgbImage, DepthMap, FrameCamera, Mask) {
+    let mut color = RgbImage::from_pixel(S, S, Rgb([150, 150, 150]));
+    let mut depth = vec![3100u16; (S * S) as usize];
+    let mut bin = Mask::new(S, S);
+    for y in 30..50 {
+        for x in 38..50 {
+            bin.set(x, y, true);
+            color.put_pixel(x, y, Rgb([30, 30, 30]));
+            // top rows ramp into the wall behind
+            depth[(y * S + x) as usize] = if y < 33 { 3100 - (y as u16 - 29) * 20 } else { 3030 };
+        }
+        for x in 26..38 {
+            color.put_pixel(x, y, Rgb([235, 230, 225]));
+            depth[(y * S + x) as usize] = 2000;
+        }
+    }
+    let k = Intrinsics { fx: 80.0, fy: 80.0, cx: 39.5, cy: 39.5, width: S, height: S };
+    let pose = look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z());
+    let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+    (color, DepthMap::new(S, S, depth), cam, bin)
+}
+
+#[test]
+fn the_surface_that_fills_the_box_wins_over_a_nearer_occluder() {
+    let (color, depth, cam, bin) = scene();
+    let seg = DepthSegmenter::default();
+    let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [38.0, 30.0, 50.0, 50.0]).unwrap();
+    assert!(m.iou(&bin) > 0.9, "tight box: IoU {}", m.iou(&bin));
+    // The box of the visible bin plus the bed's part: the bed is nearer and stays inside.
+    let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
+    assert!(m.iou(&bin) > 0.8, "bed in front: IoU {}", m.iou(&bin));
+    // On depth alone the bin runs onto the wall and past the box, and the bed wins.
+    let depth_only = DepthSegmenter { colour_tol: f64::INFINITY, ..DepthSegmenter::default() };
+    let m = depth_only.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
+    assert!(m.iou(&bin) < 0.2, "depth only: IoU {}", m.iou(&bin));
+}
+
+#[test]
+fn flying_pixels_do_not_bridge_an_object_to_the_wall_behind() {
+    // Seen from above: a grey block's top 2.0 m away, the grey floor 2.1 m (a step
+    // larger than one growth step, so only the sensor's mixed pixels around its outline
+    // join the two). A narrow lens (fx 800: 2.5 mm per pixel at 2 m) so the step is not
+    // mistaken for a slanted surface.
+    let color = RgbImage::from_pixel(S, S, Rgb([140, 140, 140]));
+    let mut depth = vec![2100u16; (S * S) as usize];
+    let mut block = Mask::new(S, S);
+    for y in 29..=50u32 {
+        for x in 29..=50u32 {
+            let ring = x == 29 || x == 50 || y == 29 || y == 50;
+            depth[(y * S + x) as usize] = if ring { 2050 } else { 2000 };
+            if !ring {
+                block.set(x, y, true);
+            }
+        }
+    }
+    let depth = DepthMap::new(S, S, depth);
+    let k = Intrinsics { fx: 800.0, fy: 800.0, cx: 39.5, cy: 39.5, width: S, height: S };
+    let pose = look_at_pose(Point3::new(0.0, 0.0, 3.0), Point3::new(0.0, 0.0, 0.0), Vector3::x());
+    let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+    let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+    // A loose box: the wall shows in its border.
+    let bbox = [26.0, 26.0, 54.0, 54.0];
+    let m = DepthSegmenter { block_edges: true, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
+    assert!(m.iou(&block) > 0.9, "IoU {}", m.iou(&block));
+    let bridged = DepthSegmenter { block_edges: false, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
+    assert!(bridged.iou(&block) < m.iou(&block), "without edge blocking: IoU {}", bridged.iou(&block));
+}
+
+#[test]
+fn a_slanted_surface_is_not_taken_for_an_edge() {
+    // A plate tilted about 63 degrees away from the camera in a coarse image (fx 80, so
+    // 2.5 cm per pixel at 2 m): each row 5 cm deeper than the one above, within one
+    // growth step, but two rows differ by more than one. Wall at 3.5 m.
+    let color = RgbImage::from_pixel(S, S, Rgb([140, 140, 140]));
+    let mut depth = vec![3500u16; (S * S) as usize];
+    let mut plate = Mask::new(S, S);
+    for y in 30..50u32 {
+        for x in 30..50u32 {
+            depth[(y * S + x) as usize] = 1500 + (y as u16 - 30) * 50;
+            plate.set(x, y, true);
+        }
+    }
+    let depth = DepthMap::new(S, S, depth);
+    let k = Intrinsics { fx: 80.0, fy: 80.0, cx: 39.5, cy: 39.5, width: S, height: S };
+    let pose = look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z());
+    let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+    let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+    let seg = DepthSegmenter::from_spec("edges=on").unwrap();
+    assert!(seg.block_edges);
+    let m = seg.segment(&input, [29.0, 29.0, 51.0, 51.0]).unwrap();
+    // The plate's one-cell outline against the wall is given up (18x18 of 20x20 cells);
+    // taken for an edge, every row of the ramp would be cut out instead.
+    assert!(m.iou(&plate) > 0.75, "IoU {}", m.iou(&plate));
+    assert!(DepthSegmenter::from_spec("edges=maybe").is_err());
+    assert!(!DepthSegmenter::from_spec("").unwrap().block_edges);
+}
