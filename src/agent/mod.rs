@@ -42,6 +42,10 @@ pub struct AgentParams {
     /// Share of valid depth pixels a frame's detection of the target class needs for the
     /// frame to be offered (a box with no depth cannot become a 3D box).
     pub min_depth_fraction: f64,
+    /// Share of valid depth pixels that makes a detection well measured: when some frames
+    /// have a well-measured detection of the target class, only they are offered (a
+    /// window mostly beyond the sensor's range gives a poor box).
+    pub good_depth_fraction: f64,
     /// VLM calls a job may make.
     pub max_vlm_calls: u32,
     /// Wall time a job may take, seconds.
@@ -59,6 +63,7 @@ impl Default for AgentParams {
             preselect_score: 0.2,
             fallback_frames: 48,
             min_depth_fraction: 0.2,
+            good_depth_fraction: 0.6,
             max_vlm_calls: 16,
             max_job_seconds: 600,
             stitch: StitchOptions::default(),

@@ -42,6 +42,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
     }
     let class = g.detector.can_see(&analysis.target_class);
     let mut no_depth: Vec<usize> = Vec::new();
+    let mut depth_tier: Option<f64> = None;
     let (frames, fallback) = match &class {
         None => (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("detector cannot see this class: {:?}", analysis.target_class))),
         Some(c) => {
@@ -52,18 +53,21 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
                 (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("no frame has a {c:?} detection above {}", g.params.preselect_score)))
             } else {
                 // A frame whose every detection of the class lies where the sensor read no
-                // depth (too far, glass, a dark surface) cannot give a 3D box: not offered,
-                // unless that would leave nothing.
-                let (with_depth, without): (Vec<usize>, Vec<usize>) = hits.iter().partition(|i| {
-                    let f = &ctx.scene.frames[**i];
-                    dets.get(*i).is_some_and(|d| d.iter().any(|d| is_hit(d) && depth_fraction(f, d.bbox) >= g.params.min_depth_fraction))
-                });
-                if with_depth.is_empty() {
-                    (hits, None)
-                } else {
-                    no_depth = without;
-                    (with_depth, None)
-                }
+                // depth (too far, glass, a dark surface) cannot give a 3D box, and one where
+                // it is mostly unread gives a poor one. Offered: the frames with a
+                // well-measured detection if there are any, else those with some depth,
+                // else all.
+                let best: Vec<f64> = hits
+                    .iter()
+                    .map(|i| {
+                        let f = &ctx.scene.frames[*i];
+                        dets.get(i).map_or(0.0, |d| d.iter().filter(|d| is_hit(d)).map(|d| depth_fraction(f, d.bbox)).fold(0.0, f64::max))
+                    })
+                    .collect();
+                let (keep, dropped, tier) = split_by_depth(&hits, &best, g.params.good_depth_fraction, g.params.min_depth_fraction);
+                no_depth = dropped;
+                depth_tier = tier;
+                (keep, None)
             }
         }
     };
@@ -73,11 +77,22 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
         ctx,
         "preselection",
         json!({"target_class": analysis.target_class, "usable_frames": usable.len()}),
-        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>()}),
+        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "depth_fraction_required": depth_tier}),
         t,
     )
     .await;
     Ok(Preselection { frames, detector_class: class, fallback })
+}
+
+/// The frames to offer given each frame's best depth fraction of a target detection
+/// (`best[k]` for `hits[k]`): those at `good` or above when any are, else those at `min`
+/// or above when any are, else all. Also the frames dropped and the fraction applied.
+pub fn split_by_depth(hits: &[usize], best: &[f64], good: f64, min: f64) -> (Vec<usize>, Vec<usize>, Option<f64>) {
+    let Some(t) = [good, min].into_iter().find(|&t| best.iter().any(|&b| b >= t)) else {
+        return (hits.to_vec(), Vec::new(), None);
+    };
+    let (keep, drop): (Vec<(usize, f64)>, Vec<(usize, f64)>) = hits.iter().copied().zip(best.iter().copied()).partition(|(_, b)| *b >= t);
+    (keep.into_iter().map(|(i, _)| i).collect(), drop.into_iter().map(|(i, _)| i).collect(), Some(t))
 }
 
 /// Share of the depth pixels under colour box `b` of frame `f` that hold a reading
@@ -112,6 +127,15 @@ mod tests {
         assert_eq!(evenly_sampled(&items, 5), vec![0, 2, 4, 6, 8]);
         assert_eq!(evenly_sampled(&items, 20), items);
         assert_eq!(evenly_sampled(&items[..3], 2), vec![0, 1]);
+    }
+
+    #[test]
+    fn well_measured_frames_are_preferred_then_any_with_depth_then_all() {
+        use super::split_by_depth;
+        let hits = [3, 7, 9];
+        assert_eq!(split_by_depth(&hits, &[0.3, 0.9, 0.1], 0.6, 0.2), (vec![7], vec![3, 9], Some(0.6)));
+        assert_eq!(split_by_depth(&hits, &[0.3, 0.5, 0.1], 0.6, 0.2), (vec![3, 7], vec![9], Some(0.2)));
+        assert_eq!(split_by_depth(&hits, &[0.0, 0.1, 0.1], 0.6, 0.2), (vec![3, 7, 9], vec![], None));
     }
 
     #[test]
