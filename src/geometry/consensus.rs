@@ -21,6 +21,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::camera::transform_point;
+use super::projection::project_one;
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
 
 /// Settings of the multi-view checks.
@@ -90,23 +91,18 @@ impl<'a> Probe<'a> {
     }
 
     fn look(&self, p: &Point3<f64>, params: &GeometryParams) -> Seen {
-        let pc = transform_point(&self.to_cam, p);
-        let Some((u, v, z)) = self.cam.color.project(&pc) else {
+        let Some(q) = project_one(p, &self.to_cam, self.cam, self.depth, params) else {
             return Seen::Nothing;
         };
-        let (w, h) = (self.cam.color.width as f64, self.cam.color.height as f64);
-        if !(u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5) {
-            return Seen::Nothing;
-        }
-        let (x, y) = (u.round().max(0.0) as u32, v.round().max(0.0) as u32);
-        let tol = params.visibility_tolerance(z);
-        let Some(d) = self.cam.depth_at_color(self.depth, x as f64, y as f64) else {
+        let Some(d) = q.measured else {
             return Seen::Nothing;
         };
-        if (d - z).abs() <= tol {
+        let (x, y) = (q.u.round().max(0.0) as u32, q.v.round().max(0.0) as u32);
+        if q.visible {
             return Seen::OnSurface(x, y);
         }
-        if d > z + tol && self.neighbourhood_beyond(x, y, z + tol) {
+        let beyond = q.z + params.visibility_tolerance(q.z);
+        if d > beyond && self.neighbourhood_beyond(x, y, beyond) {
             return Seen::Through;
         }
         Seen::Nothing

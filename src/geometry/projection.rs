@@ -187,29 +187,20 @@ pub fn project_points(
 ) -> Result<Vec<Option<Projected>>, ProjectionError> {
     cam.check_depth(depth)?;
     let to_cam = cam.out_to_cam()?;
+    Ok(points.iter().map(|p| project_one(p, &to_cam, cam, depth, params)).collect())
+}
+
+/// One point of [`project_points`], with the world → camera transform already inverted
+/// (`to_cam`) and the depth map's size already checked.
+pub(crate) fn project_one(p: &Point3<f64>, to_cam: &Matrix4<f64>, cam: &FrameCamera, depth: &DepthMap, params: &GeometryParams) -> Option<Projected> {
+    let pc = transform_point(to_cam, p);
+    let (u, v, z) = cam.color.project(&pc)?;
     let (w, h) = (cam.color.width as f64, cam.color.height as f64);
-    Ok(points
-        .iter()
-        .map(|p| {
-            let pc = transform_point(&to_cam, p);
-            let (u, v, z) = cam.color.project(&pc)?;
-            // Pixel centres sit at integer coordinates: the image spans [-0.5, w - 0.5).
-            let inside = u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5;
-            let measured = if inside {
-                cam.depth_at_color(depth, u.round(), v.round())
-            } else {
-                None
-            };
-            let visible = measured.is_some_and(|d| (d - z).abs() <= params.visibility_tolerance(z));
-            Some(Projected {
-                u,
-                v,
-                z,
-                measured,
-                visible,
-            })
-        })
-        .collect())
+    // Pixel centres sit at integer coordinates: the image spans [-0.5, w - 0.5).
+    let inside = u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5;
+    let measured = if inside { cam.depth_at_color(depth, u.round().max(0.0), v.round().max(0.0)) } else { None };
+    let visible = measured.is_some_and(|d| (d - z).abs() <= params.visibility_tolerance(z));
+    Some(Projected { u, v, z, measured, visible })
 }
 
 #[cfg(test)]
