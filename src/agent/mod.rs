@@ -44,7 +44,10 @@ pub struct AgentParams {
     pub min_depth_fraction: f64,
     /// Share of valid depth pixels that makes a detection well measured: when some frames
     /// have a well-measured detection of the target class, only they are offered (a
-    /// window mostly beyond the sensor's range gives a poor box).
+    /// window mostly beyond the sensor's range gives a poor box). The default equals
+    /// `min_depth_fraction`, which turns this off: with 0.6 the realistic benchmark gained
+    /// 4 points of Acc@0.25 but lost 3 of Nr3D accuracy, because when several instances
+    /// exist, the one seen only from afar is no longer offered at all.
     pub good_depth_fraction: f64,
     /// VLM calls a job may make.
     pub max_vlm_calls: u32,
@@ -63,7 +66,7 @@ impl Default for AgentParams {
             preselect_score: 0.2,
             fallback_frames: 48,
             min_depth_fraction: 0.2,
-            good_depth_fraction: 0.6,
+            good_depth_fraction: 0.2,
             max_vlm_calls: 16,
             max_job_seconds: 600,
             stitch: StitchOptions::default(),
