@@ -20,6 +20,8 @@ pub mod params;
 pub mod planar;
 pub mod projection;
 pub mod support;
+#[cfg(test)]
+pub(crate) mod test_grid;
 pub mod walls;
 
 pub use boxes::Aabb;

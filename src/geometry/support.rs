@@ -388,21 +388,13 @@ mod tests {
 
     /// Points on a grid over [a0, a1] x [b0, b1] along axes (i, j), constant `c` on axis k.
     fn plane(k: usize, c: f64, (i, a0, a1): (usize, f64, f64), (j, b0, b1): (usize, f64, f64), step: f64) -> Vec<Point3<f64>> {
-        let mut out = Vec::new();
-        let mut a = a0;
-        while a <= a1 + 1e-9 {
-            let mut bb = b0;
-            while bb <= b1 + 1e-9 {
-                let mut p = Point3::origin();
-                p[k] = c;
-                p[i] = a;
-                p[j] = bb;
-                out.push(p);
-                bb += step;
-            }
-            a += step;
-        }
-        out
+        crate::geometry::test_grid::grid((a0, a1), (b0, b1), step, |a, b| {
+            let mut p = Point3::origin();
+            p[k] = c;
+            p[i] = a;
+            p[j] = b;
+            p
+        })
     }
 
     #[test]

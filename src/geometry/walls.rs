@@ -66,20 +66,7 @@ pub fn cut_wall_leaks(points: &[Point3<f64>], context: &[Point3<f64>], p: &Suppo
 mod tests {
     use super::*;
 
-    /// Points on a grid: `f(a, b)` for a, b stepping over the two ranges.
-    fn grid(a: (f64, f64), b: (f64, f64), step: f64, f: impl Fn(f64, f64) -> Point3<f64>) -> Vec<Point3<f64>> {
-        let mut out = Vec::new();
-        let mut x = a.0;
-        while x <= a.1 + 1e-9 {
-            let mut y = b.0;
-            while y <= b.1 + 1e-9 {
-                out.push(f(x, y));
-                y += step;
-            }
-            x += step;
-        }
-        out
-    }
+    use crate::geometry::test_grid::grid;
 
     #[test]
     fn a_box_against_a_wall_loses_the_wall_patch_its_mask_took() {

@@ -6,6 +6,12 @@ use nalgebra::{Matrix4, Point3, Vector3};
 
 const S: u32 = 80;
 
+/// An S x S camera with focal length `f` (pixels), centred principal point, depth aligned.
+fn camera(f: f64, pose: Matrix4<f64>) -> FrameCamera {
+    let k = Intrinsics { fx: f, fy: f, cx: 39.5, cy: 39.5, width: S, height: S };
+    FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() }
+}
+
 /// A camera looking level along +x at a wall 3.1 m away (grey). Box [30, 30, 50, 50]:
 /// a dark bin fills its right 60 % at 3.03 m (a depth step to the wall within the growth
 /// limit) and leans into the wall at its top; a white bed at 2.0 m covers the box's left
@@ -26,9 +32,7 @@ fn scene() -> (RgbImage, DepthMap, FrameCamera, Mask) {
             depth[(y * S + x) as usize] = 2000;
         }
     }
-    let k = Intrinsics { fx: 80.0, fy: 80.0, cx: 39.5, cy: 39.5, width: S, height: S };
-    let pose = look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z());
-    let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+    let cam = camera(80.0, look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z()));
     (color, DepthMap::new(S, S, depth), cam, bin)
 }
 
@@ -66,9 +70,7 @@ fn flying_pixels_do_not_bridge_an_object_to_the_wall_behind() {
         }
     }
     let depth = DepthMap::new(S, S, depth);
-    let k = Intrinsics { fx: 800.0, fy: 800.0, cx: 39.5, cy: 39.5, width: S, height: S };
-    let pose = look_at_pose(Point3::new(0.0, 0.0, 3.0), Point3::new(0.0, 0.0, 0.0), Vector3::x());
-    let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+    let cam = camera(800.0, look_at_pose(Point3::new(0.0, 0.0, 3.0), Point3::new(0.0, 0.0, 0.0), Vector3::x()));
     let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
     // A loose box: the wall shows in its border.
     let bbox = [26.0, 26.0, 54.0, 54.0];
@@ -93,9 +95,7 @@ fn a_slanted_surface_is_not_taken_for_an_edge() {
         }
     }
     let depth = DepthMap::new(S, S, depth);
-    let k = Intrinsics { fx: 80.0, fy: 80.0, cx: 39.5, cy: 39.5, width: S, height: S };
-    let pose = look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z());
-    let cam = FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() };
+    let cam = camera(80.0, look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z()));
     let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
     let seg = DepthSegmenter::from_spec("edges=on").unwrap();
     assert!(seg.block_edges);
