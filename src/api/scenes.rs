@@ -74,12 +74,15 @@ pub async fn upload(State(state): State<AppState>, headers: HeaderMap, body: Bod
     let mut scene_guard = Cleanup(Some(scene_dir));
     state.store.insert_scene(&id, &scene, status, detector.filter(|_| status == "indexing")).await?;
     scene_guard.disarm();
+    // Read the record before indexing starts, so the answer shows the scene as stored,
+    // not a state a fast indexer reached meanwhile.
+    let record = state.store.get_scene(&id).await;
     if status == "indexing" {
         (state.on_scene_stored)(id.clone());
     } else {
         state.jobs.wake();
     }
-    let record = state.store.get_scene(&id).await?.ok_or_else(|| ApiError::internal("scene vanished after insert"))?;
+    let record = record?.ok_or_else(|| ApiError::internal("scene vanished after insert"))?;
     Ok((StatusCode::CREATED, [(header::LOCATION, format!("/v1/scenes/{id}"))], axum::Json(record)))
 }
 

@@ -91,16 +91,17 @@ const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, 
 
 impl Store {
     pub async fn create_job(&self, id: &str, scene_id: &str, query: &str) -> Result<JobRecord, StoreError> {
-        let r = sqlx::query("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?)")
+        // RETURNING gives the row as inserted: a worker may claim the job before a second
+        // read, and the caller must still see it queued.
+        let r = sqlx::query(&format!("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?) RETURNING {JOB_COLS}"))
             .bind(id)
             .bind(scene_id)
             .bind(query)
             .bind(now_rfc3339())
-            .execute(&self.pool)
+            .fetch_one(&self.pool)
             .await;
         self.job_cache.invalidate();
-        r?;
-        self.get_job(id).await?.ok_or_else(|| StoreError::Corrupt("job vanished after insert".into()))
+        job_from_row(&r?)
     }
 
     pub async fn get_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {

@@ -215,3 +215,33 @@ async fn a_poll_returns_the_trace_in_step_order() {
     assert!(list["jobs"][0].get("trace").is_none(), "{list}");
     app.stop().await;
 }
+
+/// A job is reported as created even when a worker claims it at once: the response to a
+/// POST never shows a state the caller did not cause.
+#[tokio::test]
+async fn a_new_job_is_reported_queued_even_when_claimed_at_once() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let claimer = {
+        let (store, stop) = (store.clone(), stop.clone());
+        tokio::spawn(async move {
+            let mut claimed = 0;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if store.claim_next_job().await.unwrap().is_some() {
+                    claimed += 1;
+                }
+                tokio::task::yield_now().await;
+            }
+            claimed
+        })
+    };
+    for i in 0..200 {
+        let rec = store.create_job(&format!("race-{i}"), &sid, "the chair").await.unwrap();
+        assert_eq!((rec.status.as_str(), rec.attempts, rec.started_at.is_none()), ("queued", 0, true), "job {i}");
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    assert!(claimer.await.unwrap() > 0, "the claimer ran beside the inserts");
+    app.stop().await;
+}
