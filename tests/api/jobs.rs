@@ -39,14 +39,18 @@ async fn a_job_runs_to_a_box_with_a_trace() {
 
 #[tokio::test]
 async fn failures_cancels_and_bad_requests() {
-    let app = TestApp::spawn().await;
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path().to_path_buf());
+    // Long enough that a loaded machine still catches the job running before it ends.
+    cfg.pipeline = "test:delay_ms=1500".into();
+    let app = TestApp::spawn_with(cfg).await;
     let sid = scene(&app).await;
     // A failing pipeline gives a named reason.
     let j: Value = app.create_job(&sid, "[fail] the lamp").await.json().await.unwrap();
     let done = app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10)).await;
     assert_eq!((done["status"].as_str(), done["error"]["code"].as_str()), (Some("failed"), Some("no_target_found")));
 
-    // Cancel while running: the pipeline sleeps 100 ms, so catch it running.
+    // Cancel while running.
     let j: Value = app.create_job(&sid, "the table").await.json().await.unwrap();
     let id = j["id"].as_str().unwrap().to_string();
     for _ in 0..200 {
@@ -58,9 +62,11 @@ async fn failures_cancels_and_bad_requests() {
     }
     let r = app.client.post(app.url(&format!("/v1/jobs/{id}/cancel"))).send().await.unwrap();
     assert_eq!(r.status().as_u16(), 200);
+    let s = app.wait_job(&id, Duration::from_secs(10)).await;
+    assert_eq!(s["status"], "canceled", "a cancel is never overwritten by the finishing worker: {s}");
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
-    assert_eq!(s["status"], "canceled", "a cancel is never overwritten by the finishing worker: {s}");
+    assert_eq!(s["status"], "canceled", "{s}");
     let r = app.client.post(app.url(&format!("/v1/jobs/{id}/cancel"))).send().await.unwrap();
     assert_eq!(r.status().as_u16(), 409, "cancelling a finished job is a conflict");
 
