@@ -19,7 +19,7 @@ use super::{ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use crate::geometry::ensemble::{chamfer_decisions, find_views, fuse_clouds, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{voxel_downsample, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
+use crate::geometry::{fill_depth, voxel_downsample, cut_wall_leaks, DepthFillStats, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -90,6 +90,24 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
     Ok(ViewCloud { mask, points, context, wall_cuts })
 }
 
+/// The anchor frame with the empty depth pixels inside `bbox` filled from the other usable
+/// frames (`geometry::fill_depth`), when that is on; the stats are `None` when it is off.
+fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData, bbox: [f32; 4], params: &GeometryParams) -> (FrameData, Option<DepthFillStats>) {
+    if !params.depth_fill.enabled {
+        return (anchor, None);
+    }
+    let others: Vec<_> = scene.usable_frames().filter(|f| f.idx != anchor.idx).map(|f| (&f.camera, f.depth.as_ref())).collect();
+    match fill_depth(&anchor.camera, &anchor.depth, bbox, &others, params) {
+        Ok((depth, stats)) => {
+            if stats.filled > 0 {
+                anchor.depth = Arc::new(depth);
+            }
+            (anchor, Some(stats))
+        }
+        Err(_) => (anchor, None),
+    }
+}
+
 /// The anchor's image comes with `choice`; the ensemble views are decoded here.
 pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice) -> Result<Projected, JobFailure> {
     let t = Instant::now();
@@ -97,15 +115,21 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let anchor = scene.frames[choice.frame_idx].clone();
     let (seg, params, image, bbox) = (g.segmenter.clone(), g.params.geometry.clone(), choice.image.clone(), choice.bbox);
     let cut_walls = !g.params.geometry.support.hangs(target_class) && !g.params.geometry.support.is_flat(target_class);
-    let ViewCloud { mask: anchor_mask, points: anchor_pts, context: anchor_ctx, wall_cuts } = tokio::task::spawn_blocking(move || segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls))
-        .await
-        .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
-        .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
+    let sc = scene.clone();
+    let (cloud, fill) = tokio::task::spawn_blocking(move || {
+        // The anchor's empty depth pixels in the box, completed from the other frames.
+        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, &params);
+        segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls).map(|c| (c, fill))
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
+    .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
+    let ViewCloud { mask: anchor_mask, points: anchor_pts, context: anchor_ctx, wall_cuts } = cloud;
     step(
         ctx,
         "segmentation",
         json!({"image_id": format!("{:05}", choice.frame_idx), "box": choice.bbox, "segmenter": g.segmenter.name()}),
-        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": anchor_mask.width, "height": anchor_mask.height, "rle": mask_rle(&anchor_mask)}, "pixels": anchor_mask.count(), "points": anchor_pts.len(), "wall_cuts": wall_cuts}),
+        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": anchor_mask.width, "height": anchor_mask.height, "rle": mask_rle(&anchor_mask)}, "pixels": anchor_mask.count(), "points": anchor_pts.len(), "wall_cuts": wall_cuts, "depth_fill": fill}),
         t,
     )
     .await;

@@ -13,6 +13,7 @@ pub mod boxes;
 pub mod camera;
 pub mod cloud;
 pub mod consensus;
+pub mod depth_fill;
 pub mod ensemble;
 pub mod mask;
 pub mod morph;
@@ -29,6 +30,7 @@ pub use camera::{DepthMap, FrameCamera, Intrinsics};
 pub use cloud::{
     chamfer_distance, neighbour_mean_distances, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
 };
+pub use depth_fill::{fill_depth, DepthFillParams, DepthFillStats};
 pub use consensus::{free_space_votes, mask_votes, ConsensusParams, MaskView};
 pub use ensemble::{
     chamfer_decisions, find_views, fuse_clouds, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,

@@ -58,6 +58,8 @@ pub struct GeometryParams {
     pub plane_iqr: f64,
     /// Multi-view mask votes and free-space carving (ours; see `consensus.rs`).
     pub consensus: super::ConsensusParams,
+    /// Depth completion of the chosen view from other views (ours; see `depth_fill.rs`).
+    pub depth_fill: super::DepthFillParams,
     /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
     pub support: super::SupportParams,
 }
@@ -84,6 +86,7 @@ impl Default for GeometryParams {
             max_fused_points: 30_000,
             plane_iqr: 0.0,
             consensus: super::ConsensusParams::default(),
+            depth_fill: super::DepthFillParams::default(),
             support: super::SupportParams::default(),
         }
     }
