@@ -11,7 +11,8 @@
 //!   (with a tolerance of a few pixels) covers the pixel and against it when not; a view that sees past the
 //!   point votes against it; a view where it is hidden or out of frame abstains. The point's
 //!   own view does not vote. A point is dropped when the votes against outnumber the votes
-//!   for.
+//!   for, or (`anchor_veto`) when the chosen view measures it outside its mask: that mask
+//!   comes from the box the VLM picked, the others from boxes matched to it.
 //! - [`free_space_votes`]: every fused point is projected into every usable frame; it is
 //!   dropped when at least `min_seen_through` frames see past it (every depth pixel around
 //!   its projection lies beyond it) and they outnumber the frames that measure it.
@@ -35,6 +36,9 @@ pub struct ConsensusParams {
     /// in blocks of half this side, a pixel counting as covered when a block next to its
     /// own holds the mask.
     pub mask_dilate: u32,
+    /// The first view given to [`mask_votes`] (the agent passes the chosen view) overrules
+    /// the others: a point it measures outside its mask is dropped whatever they say.
+    pub anchor_veto: bool,
     /// Run [`free_space_votes`] on the fused cloud with every usable frame.
     pub free_space: bool,
     /// Frames that must see past a point before it can be dropped.
@@ -49,6 +53,7 @@ impl Default for ConsensusParams {
         Self {
             mask_votes: true,
             mask_dilate: 15,
+            anchor_veto: true,
             free_space: true,
             min_seen_through: 2,
             max_carve_frames: 20,
@@ -185,6 +190,7 @@ pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &Ge
                         let Some(probe) = probe.as_ref().filter(|_| k != own) else { continue };
                         match probe.look(p, params) {
                             Seen::OnSurface(x, y) if coarse[k].covers(x, y) => pro += 1,
+                            Seen::OnSurface(..) if k == 0 && params.consensus.anchor_veto => return false,
                             Seen::OnSurface(..) | Seen::Through => con += 1,
                             Seen::Nothing => {}
                         }
@@ -367,5 +373,13 @@ mod tests {
         let lax: Vec<MaskView> = views.iter().enumerate().map(|(i, v)| MaskView { mask: if i == 0 { v.mask } else { &full }, ..*v }).collect();
         assert_eq!(mask_votes(&[&cloud0, &[], &[]], &lax, &p)[0], vec![true, true]);
         assert_eq!(retain(&cloud0, &[true, false]), vec![cloud0[0]]);
+
+        // A wall point in view 1's cloud, seen by the anchor (view 0, cube mask: against) and
+        // view 2 (a mask covering everything: for). A tie keeps it, unless the anchor overrules.
+        let tie: Vec<MaskView> = views.iter().enumerate().map(|(i, v)| MaskView { mask: if i == 2 { &full } else { v.mask }, ..*v }).collect();
+        let cloud1 = [Point3::new(0.0, 1.0, 0.5), Point3::new(-1.0, 3.0, 0.5)];
+        let lenient = GeometryParams { consensus: ConsensusParams { anchor_veto: false, ..Default::default() }, ..p.clone() };
+        assert_eq!(mask_votes(&[&[], &cloud1, &[]], &tie, &lenient)[1], vec![true, true]);
+        assert_eq!(mask_votes(&[&[], &cloud1, &[]], &tie, &p)[1], vec![true, false]);
     }
 }
