@@ -73,6 +73,67 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel: f64) -> Vec<Point3<f64>> 
         .collect()
 }
 
+/// Drop the points of small detached clusters: points are grouped into `voxel`-sized
+/// cells, cells touching (26-neighbourhood) form clusters, and a cluster is kept when it
+/// holds at least `min_fraction` of the points of the largest one. Returns keep-flags.
+/// `voxel` <= 0 keeps everything.
+pub fn cluster_keep(points: &[Point3<f64>], voxel: f64, min_fraction: f64) -> Vec<bool> {
+    if voxel <= 0.0 || points.is_empty() {
+        return vec![true; points.len()];
+    }
+    let key = |p: &Point3<f64>| ((p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64);
+    let mut cell: HashMap<(i64, i64, i64), usize, BuildHasherDefault<VoxelHasher>> = HashMap::with_capacity_and_hasher(points.len() / 4, Default::default());
+    let mut counts: Vec<usize> = Vec::new();
+    let point_cell: Vec<usize> = points
+        .iter()
+        .map(|p| {
+            let i = *cell.entry(key(p)).or_insert_with(|| {
+                counts.push(0);
+                counts.len() - 1
+            });
+            counts[i] += 1;
+            i
+        })
+        .collect();
+    let keys: Vec<(i64, i64, i64)> = {
+        let mut k = vec![(0, 0, 0); counts.len()];
+        for (&c, &i) in &cell {
+            k[i] = c;
+        }
+        k
+    };
+    // Flood fill over occupied cells.
+    let mut label = vec![usize::MAX; counts.len()];
+    let mut sizes: Vec<usize> = Vec::new();
+    for start in 0..counts.len() {
+        if label[start] != usize::MAX {
+            continue;
+        }
+        let id = sizes.len();
+        sizes.push(0);
+        label[start] = id;
+        let mut stack = vec![start];
+        while let Some(i) = stack.pop() {
+            sizes[id] += counts[i];
+            let (x, y, z) = keys[i];
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        if let Some(&j) = cell.get(&(x + dx, y + dy, z + dz)) {
+                            if label[j] == usize::MAX {
+                                label[j] = id;
+                                stack.push(j);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
+    point_cell.iter().map(|&c| sizes[label[c]] as f64 >= min_fraction * largest).collect()
+}
+
 /// Evenly spaced subset of at most `max` points (every k-th point); `max == 0` keeps all.
 pub fn subsample_even(points: &[Point3<f64>], max: usize) -> Vec<Point3<f64>> {
     if max == 0 || points.len() <= max {
@@ -186,6 +247,22 @@ pub fn chamfer_distance(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_detached_cluster_is_dropped_a_large_one_stays() {
+        let block = |x0: f64, n: usize| -> Vec<Point3<f64>> { (0..n * n * n).map(|i| Point3::new(x0 + 0.02 * (i % n) as f64, 0.02 * (i / n % n) as f64, 0.02 * (i / (n * n)) as f64)).collect() };
+        // 1000 points, 125 points 30 cm away (12.5 %), 8 points 1 m away (0.8 %).
+        let mut pts = block(0.0, 10);
+        pts.extend(block(0.5, 5));
+        pts.extend(block(1.4, 2));
+        let keep = cluster_keep(&pts, 0.05, 0.1);
+        assert_eq!(keep.iter().filter(|k| **k).count(), 1125);
+        assert!(keep[..1125].iter().all(|k| *k) && keep[1125..].iter().all(|k| !*k));
+        // Cells wider than the gaps join everything; 0 turns the filter off.
+        assert!(cluster_keep(&pts, 0.8, 0.1).iter().all(|k| *k));
+        assert!(cluster_keep(&pts, 0.0, 0.1).iter().all(|k| *k));
+        assert!(cluster_keep(&[], 0.05, 0.1).is_empty());
+    }
 
     fn p(x: f64, y: f64, z: f64) -> Point3<f64> {
         Point3::new(x, y, z)

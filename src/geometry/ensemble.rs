@@ -6,7 +6,7 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    chamfer_distance, remove_statistical_outliers, subsample_even, voxel_downsample,
+    chamfer_distance, cluster_keep, neighbour_mean_distances, remove_statistical_outliers, subsample_even, voxel_downsample,
 };
 use super::projection::{project_points, ProjectionError};
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
@@ -190,7 +190,8 @@ pub fn fuse_clouds(anchor_points: usize, clouds: &[&[Point3<f64>]], views: Vec<V
         }
     }
     let kept = remove_statistical_outliers(&fused, params.sor_neighbors, params.sor_std_ratio);
-    let (aabb, flattened) = match Aabb::from_points(&kept) {
+    let kept = drop_detached(kept, params);
+    let (aabb, flattened) = match trimmed_box(&kept, params.box_trim) {
         Some(b) => {
             let (b, axes) = flatten_noisy_planes(b, &kept, params.plane_iqr);
             (Some(b), axes)
@@ -207,6 +208,38 @@ pub fn fuse_clouds(anchor_points: usize, clouds: &[&[Point3<f64>]], views: Vec<V
         fusion_voxel: voxel.max(0.0),
         views,
     }
+}
+
+/// [`cluster_keep`] with cells no finer than three times the cloud's median neighbour
+/// spacing, so a sparse cloud (far away, low-resolution depth) is not cut into pieces.
+fn drop_detached(points: Vec<Point3<f64>>, params: &GeometryParams) -> Vec<Point3<f64>> {
+    if params.cluster_voxel <= 0.0 || points.len() < 10 {
+        return points;
+    }
+    let mut d: Vec<f64> = neighbour_mean_distances(&points, params.sor_neighbors.max(2)).into_iter().filter(|d| *d >= 0.0).collect();
+    d.sort_by(f64::total_cmp);
+    let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
+    let keep = cluster_keep(&points, params.cluster_voxel.max(3.0 * spacing), params.min_cluster_fraction);
+    super::consensus::retain(&points, &keep)
+}
+
+/// The points' box, each side moved in past the `trim` fraction of the points most beyond
+/// it (per axis; 0 = the plain min–max box). Extremes of a noisy cloud overshoot the
+/// surface they sample by a few noise widths on every side.
+pub fn trimmed_box(points: &[Point3<f64>], trim: f64) -> Option<Aabb> {
+    let b = Aabb::from_points(points)?;
+    let k = (points.len() as f64 * trim.clamp(0.0, 0.25)).floor() as usize;
+    if k == 0 {
+        return Some(b);
+    }
+    let mut out = b;
+    for a in 0..3 {
+        let mut v: Vec<f64> = points.iter().map(|p| p[a]).collect();
+        v.sort_by(f64::total_cmp);
+        out.min[a] = v[k];
+        out.max[a] = v[v.len() - 1 - k];
+    }
+    Some(out)
 }
 
 /// On a horizontal axis where the points are a plane blurred by depth noise (interquartile range at
@@ -275,6 +308,21 @@ pub fn mask_points(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_trimmed_box_lets_out_a_few_stray_points_per_side() {
+        // 1000 points filling [0, 1]^3 on a 10^3 grid, plus 5 strays beyond x = 1 and one
+        // far below z = 0.
+        let mut pts: Vec<Point3<f64>> = (0..1000).map(|i| Point3::new((i % 10) as f64 / 9.0, (i / 10 % 10) as f64 / 9.0, (i / 100) as f64 / 9.0)).collect();
+        pts.extend((0..5).map(|k| Point3::new(1.1 + 0.1 * k as f64, 0.5, 0.5)));
+        pts.push(Point3::new(0.5, 0.5, -3.0));
+        let plain = trimmed_box(&pts, 0.0).unwrap();
+        assert_eq!((plain.max[0], plain.min[2]), (1.5, -3.0));
+        // 1 % of 1006 points: 10 let out per side; the grid's faces (100 points each) stay.
+        let b = trimmed_box(&pts, 0.01).unwrap();
+        assert_eq!((b.min, b.max), ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]));
+        assert!(trimmed_box(&[], 0.01).is_none());
+    }
 
     #[test]
     fn a_noisy_window_is_flattened_a_pillow_is_not() {
