@@ -11,6 +11,7 @@
 //! region, through the centroid of each cell's empty pixels, which take the ray's depth.
 
 use nalgebra::{Matrix4, Point3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::camera::transform_point;
@@ -105,26 +106,36 @@ pub fn fill_depth(
     let cell = ((stats.missing as f64 / fp.max_rays.max(1) as f64).sqrt().ceil() as u32).max(1);
     stats.cell = cell;
     let samples = depth_samples(fp.near, fp.far, fp.step);
+    // The cells' empty pixels, then one ray per cell (in parallel: rays are independent).
+    let mut cells: Vec<Vec<(u32, u32)>> = Vec::new();
     for cy in (y0..y1).step_by(cell as usize) {
         for cx in (x0..x1).step_by(cell as usize) {
             let (ex, ey) = ((cx + cell).min(x1), (cy + cell).min(y1));
             let empty: Vec<(u32, u32)> = (cy..ey).flat_map(|y| (cx..ex).map(move |x| (x, y))).filter(|&(x, y)| depth.get(x, y) == 0).collect();
-            if empty.is_empty() {
-                continue;
+            if !empty.is_empty() {
+                cells.push(empty);
             }
+        }
+    }
+    let depths: Vec<Option<f64>> = cells
+        .par_iter()
+        .map(|empty| {
             // The ray through the centroid of the cell's empty pixels (not the cell's centre,
             // which at an object's outline may lie on the measured side), in colour pixels.
             let n = empty.len() as f64;
             let (mx, my) = empty.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x as f64 / n, b + y as f64 / n));
             let (u, v) = color_pixel(cam, mx, my);
-            stats.rays += 1;
-            let Some(z) = cast(cam, &cam_to_out, u, v, &samples, &views, params) else { continue };
-            stats.resolved += 1;
-            let mm = (z * 1000.0).round().clamp(1.0, u16::MAX as f64) as u16;
-            for (x, y) in empty {
-                out.data[y as usize * w + x as usize] = mm;
-                stats.filled += 1;
-            }
+            cast(cam, &cam_to_out, u, v, &samples, &views, params)
+        })
+        .collect();
+    stats.rays = cells.len();
+    for (empty, z) in cells.iter().zip(depths) {
+        let Some(z) = z else { continue };
+        stats.resolved += 1;
+        let mm = (z * 1000.0).round().clamp(1.0, u16::MAX as f64) as u16;
+        for &(x, y) in empty {
+            out.data[y as usize * w + x as usize] = mm;
+            stats.filled += 1;
         }
     }
     Ok((out, stats))
