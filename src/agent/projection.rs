@@ -19,7 +19,7 @@ use super::{ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use crate::geometry::ensemble::{chamfer_decisions, find_views, fuse_clouds, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{fill_depth, voxel_downsample, cut_wall_leaks, DepthFillStats, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
+use crate::geometry::{fill_depth, voxel_downsample, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -91,10 +91,11 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
 }
 
 /// The anchor frame with the empty depth pixels inside `bbox` filled from the other usable
-/// frames (`geometry::fill_depth`), when that is on; the stats are `None` when it is off.
-fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData, bbox: [f32; 4], params: &GeometryParams) -> (FrameData, Option<DepthFillStats>) {
+/// frames (`geometry::fill_depth`), when that is on, and what it did for the trace (null
+/// when off; the reason when the frame could not be completed, which leaves it as it was).
+fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData, bbox: [f32; 4], params: &GeometryParams) -> (FrameData, serde_json::Value) {
     if !params.depth_fill.enabled {
-        return (anchor, None);
+        return (anchor, serde_json::Value::Null);
     }
     let others: Vec<_> = scene.usable_frames().filter(|f| f.idx != anchor.idx).map(|f| (&f.camera, f.depth.as_ref())).collect();
     match fill_depth(&anchor.camera, &anchor.depth, bbox, &others, params) {
@@ -102,9 +103,9 @@ fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData,
             if stats.filled > 0 {
                 anchor.depth = Arc::new(depth);
             }
-            (anchor, Some(stats))
+            (anchor, json!(stats))
         }
-        Err(_) => (anchor, None),
+        Err(e) => (anchor, json!({"error": e.to_string()})),
     }
 }
 
