@@ -80,18 +80,18 @@ enum Seen {
     Through,
 }
 
-/// A frame prepared for projection (the world → camera transform computed once).
-struct Probe<'a> {
-    cam: &'a FrameCamera,
-    depth: &'a DepthMap,
-    to_cam: Matrix4<f64>,
+/// A frame prepared for projection (the world → camera transform computed once; also used
+/// by `depth_fill`).
+pub(crate) struct Probe<'a> {
+    pub(crate) cam: &'a FrameCamera,
+    pub(crate) depth: &'a DepthMap,
+    pub(crate) to_cam: Matrix4<f64>,
 }
 
 impl<'a> Probe<'a> {
-    fn new(cam: &'a FrameCamera, depth: &'a DepthMap) -> Option<Self> {
-        if (depth.width, depth.height) != cam.depth_size || depth.data.len() != (depth.width * depth.height) as usize {
-            return None;
-        }
+    /// `None` when the depth map does not fit the camera or the pose is unusable.
+    pub(crate) fn new(cam: &'a FrameCamera, depth: &'a DepthMap) -> Option<Self> {
+        cam.check_depth(depth).ok()?;
         Some(Self { cam, depth, to_cam: cam.out_to_cam().ok()? })
     }
 

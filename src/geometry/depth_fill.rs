@@ -15,6 +15,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::camera::transform_point;
+use super::consensus::Probe;
 use super::projection::{project_one, ProjectionError};
 use super::{DepthMap, FrameCamera, GeometryParams};
 
@@ -62,13 +63,6 @@ pub struct DepthFillStats {
     pub cell: u32,
 }
 
-/// One other frame: its camera, depth and world → camera transform.
-struct View<'a> {
-    cam: &'a FrameCamera,
-    depth: &'a DepthMap,
-    to_cam: Matrix4<f64>,
-}
-
 /// Fill the empty depth pixels of `depth` (the depth image of `cam`) inside `region`, a box
 /// in colour pixels `[x0, y0, x1, y1]`, from the readings of `others`. Returns the completed
 /// depth map (a copy; pixels with a reading are never changed) and what was done.
@@ -80,9 +74,7 @@ pub fn fill_depth(
     params: &GeometryParams,
 ) -> Result<(DepthMap, DepthFillStats), ProjectionError> {
     let fp = &params.depth_fill;
-    if (depth.width, depth.height) != cam.depth_size || depth.data.len() != (depth.width as usize * depth.height as usize) {
-        return Err(ProjectionError::DepthSize { got: (depth.width, depth.height), want: cam.depth_size });
-    }
+    cam.check_depth(depth)?;
     let cam_to_out = cam.cam_to_out();
     if !super::camera::is_finite_matrix(&cam_to_out) {
         return Err(ProjectionError::BadPose);
@@ -98,11 +90,7 @@ pub fn fill_depth(
     if stats.missing == 0 || (stats.missing as f64) < fp.min_missing_fraction * area {
         return Ok((out, stats));
     }
-    let views: Vec<View> = others
-        .iter()
-        .filter(|(c, d)| (d.width, d.height) == c.depth_size && d.data.len() == c.depth_size.0 as usize * c.depth_size.1 as usize)
-        .filter_map(|&(c, d)| Some(View { cam: c, depth: d, to_cam: c.out_to_cam().ok()? }))
-        .collect();
+    let views: Vec<Probe> = others.iter().filter_map(|&(c, d)| Probe::new(c, d)).collect();
     let cell = ((stats.missing as f64 / fp.max_rays.max(1) as f64).sqrt().ceil() as u32).max(1);
     stats.cell = cell;
     let samples = depth_samples(fp.near, fp.far, fp.step);
@@ -167,13 +155,13 @@ fn depth_samples(near: f64, far: f64, step: f64) -> Vec<f64> {
 }
 
 /// Depth along the ray through colour pixel (u, v) at which other views agree on a surface.
-fn cast(cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64, samples: &[f64], views: &[View], params: &GeometryParams) -> Option<f64> {
+fn cast(cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64, samples: &[f64], views: &[Probe], params: &GeometryParams) -> Option<f64> {
     let fp = &params.depth_fill;
     let (Some(&near), Some(&far)) = (samples.first(), samples.last()) else { return None };
     let at = |z: f64| transform_point(cam_to_out, &cam.color.unproject(u, v, z));
     let (pn, pf) = (at(near), at(far));
     // Only the views the ray's segment can appear in.
-    let seen: Vec<&View> = views.iter().filter(|vw| segment_may_be_seen(vw, &pn, &pf)).collect();
+    let seen: Vec<&Probe> = views.iter().filter(|vw| segment_may_be_seen(vw, &pn, &pf)).collect();
     if seen.len() < fp.min_votes {
         return None;
     }
@@ -201,7 +189,7 @@ fn cast(cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64, samples: &
 
 /// False when the segment from `a` to `b` is certainly outside the view's image: both ends
 /// behind the camera, or both in front and their pixel box misses the image.
-fn segment_may_be_seen(vw: &View, a: &Point3<f64>, b: &Point3<f64>) -> bool {
+fn segment_may_be_seen(vw: &Probe, a: &Point3<f64>, b: &Point3<f64>) -> bool {
     let (ca, cb) = (transform_point(&vw.to_cam, a), transform_point(&vw.to_cam, b));
     match (vw.cam.color.project(&ca), vw.cam.color.project(&cb)) {
         (None, None) => false,

@@ -90,7 +90,7 @@ impl FrameCamera {
         m.try_inverse().ok_or(ProjectionError::BadPose)
     }
 
-    fn check_depth(&self, depth: &DepthMap) -> Result<(), ProjectionError> {
+    pub(crate) fn check_depth(&self, depth: &DepthMap) -> Result<(), ProjectionError> {
         if (depth.width, depth.height) != self.depth_size
             || depth.data.len() != (depth.width * depth.height) as usize
         {
