@@ -127,10 +127,11 @@ impl VlmGrounder {
         let mut log = vlm_log::VlmLog::default();
 
         let analysis = query_analysis::run(self, &ctx, &budget, &mut log).await?;
-        let pre = preselect::run(self, &ctx, &analysis).await?;
+        let layout = projection::room_layout(self, &ctx, &analysis.target_class).await?;
+        let pre = preselect::run(self, &ctx, &analysis, layout.as_ref()).await?;
         let grids = stitching::run(self, &ctx, &pre).await?;
         let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
-        let projected = projection::run(self, &ctx, &analysis.target_class, &pre, &choice).await?;
+        let projected = projection::run(self, &ctx, &analysis.target_class, &pre, &choice, layout).await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

@@ -7,6 +7,7 @@ use serde_json::json;
 use std::time::Instant;
 
 use super::{step, VlmGrounder};
+use crate::geometry::{LayoutParams, RoomLayout};
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::json::QueryAnalysis;
 
@@ -34,7 +35,10 @@ pub fn evenly_sampled(items: &[usize], n: usize) -> Vec<usize> {
     (0..n).map(|i| items[i * items.len() / n]).collect()
 }
 
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) -> Result<Preselection, JobFailure> {
+/// `layout`: the room's box when the target is flat against a wall; then a detection's
+/// pixels without depth whose ray leaves the room beyond the sensor's range count as
+/// measured (projection ends them on the wall).
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis, layout: Option<&RoomLayout>) -> Result<Preselection, JobFailure> {
     let t = Instant::now();
     let usable: Vec<usize> = ctx.scene.usable_frames().map(|f| f.idx).collect();
     if usable.is_empty() {
@@ -61,7 +65,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
                     .iter()
                     .map(|i| {
                         let f = &ctx.scene.frames[*i];
-                        dets.get(i).map_or(0.0, |d| d.iter().filter(|d| is_hit(d)).map(|d| depth_fraction(f, d.bbox)).fold(0.0, f64::max))
+                        dets.get(i).map_or(0.0, |d| d.iter().filter(|d| is_hit(d)).map(|d| depth_fraction(f, d.bbox, layout, &g.params.geometry.layout)).fold(0.0, f64::max))
                     })
                     .collect();
                 let (keep, dropped, tier) = split_by_depth(&hits, &best, g.params.good_depth_fraction, g.params.min_depth_fraction);
@@ -77,7 +81,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis) ->
         ctx,
         "preselection",
         json!({"target_class": analysis.target_class, "usable_frames": usable.len()}),
-        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "depth_fraction_required": depth_tier}),
+        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "depth_fraction_required": depth_tier, "room_layout": layout}),
         t,
     )
     .await;
@@ -96,14 +100,16 @@ pub fn split_by_depth(hits: &[usize], best: &[f64], good: f64, min: f64) -> (Vec
 }
 
 /// Share of the depth pixels under colour box `b` of frame `f` that hold a reading
-/// (sampled on a grid of at most 32 x 32).
-pub fn depth_fraction(f: &crate::scene::FrameData, b: [f32; 4]) -> f64 {
+/// (sampled on a grid of at most 32 x 32); with a `layout`, an empty pixel whose ray leaves
+/// the room beyond the sensor's range counts as read.
+pub fn depth_fraction(f: &crate::scene::FrameData, b: [f32; 4], layout: Option<&RoomLayout>, lp: &LayoutParams) -> f64 {
     let (w, h) = (f.camera.color.width as f32, f.camera.color.height as f32);
     let (x0, y0, x1, y1) = (b[0].clamp(0.0, w), b[1].clamp(0.0, h), b[2].clamp(0.0, w), b[3].clamp(0.0, h));
     if x1 <= x0 || y1 <= y0 {
         return 0.0;
     }
     const N: usize = 32;
+    let cam_to_out = f.camera.cam_to_out();
     let (mut seen, mut valid) = (0usize, 0usize);
     for j in 0..N {
         for i in 0..N {
@@ -111,7 +117,8 @@ pub fn depth_fraction(f: &crate::scene::FrameData, b: [f32; 4]) -> f64 {
             let v = y0 + (y1 - y0) * (j as f32 + 0.5) / N as f32;
             let (du, dv) = f.camera.depth_pixel_for_color(f64::from(u), f64::from(v));
             seen += 1;
-            valid += usize::from(f.depth.get(du, dv) > 0);
+            let placeable = || layout.is_some_and(|l| l.exit_depth(&f.camera, &cam_to_out, f64::from(u), f64::from(v)).is_some_and(|z| l.beyond_range(z, lp)));
+            valid += usize::from(f.depth.get(du, dv) > 0 || placeable());
         }
     }
     valid as f64 / seen as f64
@@ -148,9 +155,9 @@ mod tests {
         let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
         let camera = FrameCamera { color, depth: None, depth_size: (40, 30), pose: Matrix4::identity(), align: Matrix4::identity() };
         let f = crate::scene::FrameData { idx: 0, name: "0".into(), usable: true, camera, depth: Arc::new(depth), color_path: "0.jpg".into(), instance_path: None };
-        assert_eq!(super::depth_fraction(&f, [0.0, 0.0, 38.0, 60.0]), 0.0);
-        assert_eq!(super::depth_fraction(&f, [40.0, 0.0, 80.0, 60.0]), 1.0);
-        assert!((super::depth_fraction(&f, [20.0, 10.0, 60.0, 50.0]) - 0.5).abs() < 0.05);
-        assert_eq!(super::depth_fraction(&f, [90.0, 0.0, 100.0, 10.0]), 0.0, "outside the image");
+        assert_eq!(super::depth_fraction(&f, [0.0, 0.0, 38.0, 60.0], None, &Default::default()), 0.0);
+        assert_eq!(super::depth_fraction(&f, [40.0, 0.0, 80.0, 60.0], None, &Default::default()), 1.0);
+        assert!((super::depth_fraction(&f, [20.0, 10.0, 60.0, 50.0], None, &Default::default()) - 0.5).abs() < 0.05);
+        assert_eq!(super::depth_fraction(&f, [90.0, 0.0, 100.0, 10.0], None, &Default::default()), 0.0, "outside the image");
     }
 }

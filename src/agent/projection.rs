@@ -19,7 +19,7 @@ use super::{ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use crate::geometry::ensemble::{chamfer_decisions, find_views, fuse_clouds, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{fill_depth, voxel_downsample, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
+use crate::geometry::{estimate_room, fill_depth, voxel_downsample, RoomLayout, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -90,15 +90,33 @@ fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox
     Ok(ViewCloud { mask, points, context, wall_cuts })
 }
 
+/// The room's box (`geometry::estimate_room`) when the target is flat against a wall and
+/// the layout prior is on: where no frame measured such an object, its pixels end on the
+/// wall. Other objects stand somewhere in front of the wall, so for them it is not made.
+pub async fn room_layout(g: &VlmGrounder, ctx: &JobContext, target_class: &str) -> Result<Option<RoomLayout>, JobFailure> {
+    let params = g.params.geometry.clone();
+    if !params.layout.enabled || !params.support.is_flat(target_class) {
+        return Ok(None);
+    }
+    let scene = ctx.scene.clone();
+    tokio::task::spawn_blocking(move || {
+        let frames: Vec<_> = scene.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
+        estimate_room(&frames, &params.layout)
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("layout task failed: {e}")))
+}
+
 /// The anchor frame with the empty depth pixels inside `bbox` filled from the other usable
-/// frames (`geometry::fill_depth`), when that is on, and what it did for the trace (null
-/// when off; the reason when the frame could not be completed, which leaves it as it was).
-fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData, bbox: [f32; 4], params: &GeometryParams) -> (FrameData, serde_json::Value) {
+/// frames (`geometry::fill_depth`) and the room's `layout`, when that is on, and what it did
+/// for the trace (null when off; the reason when the frame could not be completed, which
+/// leaves it as it was).
+fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData, bbox: [f32; 4], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
     if !params.depth_fill.enabled {
         return (anchor, serde_json::Value::Null);
     }
     let others: Vec<_> = scene.usable_frames().filter(|f| f.idx != anchor.idx).map(|f| (&f.camera, f.depth.as_ref())).collect();
-    match fill_depth(&anchor.camera, &anchor.depth, bbox, &others, params) {
+    match fill_depth(&anchor.camera, &anchor.depth, bbox, &others, layout, params) {
         Ok((depth, stats)) => {
             if stats.filled > 0 {
                 anchor.depth = Arc::new(depth);
@@ -110,16 +128,16 @@ fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData,
 }
 
 /// The anchor's image comes with `choice`; the ensemble views are decoded here.
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice) -> Result<Projected, JobFailure> {
+pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice, layout: Option<RoomLayout>) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
     let (seg, params, image, bbox) = (g.segmenter.clone(), g.params.geometry.clone(), choice.image.clone(), choice.bbox);
     let cut_walls = !g.params.geometry.support.hangs(target_class) && !g.params.geometry.support.is_flat(target_class);
-    let sc = scene.clone();
+    let (sc, lay) = (scene.clone(), layout.clone());
     let (cloud, fill) = tokio::task::spawn_blocking(move || {
         // The anchor's empty depth pixels in the box, completed from the other frames.
-        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, &params);
+        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, lay.as_ref(), &params);
         segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls).map(|c| (c, fill))
     })
     .await
@@ -173,7 +191,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let flat = g.params.geometry.support.is_flat(target_class);
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
     let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let (seg, params, sc, vb) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone());
+    let (seg, params, sc, vb, room) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone(), layout);
     let anchor_idx = choice.frame_idx;
     let (fusion, single, support, votes, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
@@ -236,7 +254,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         let bulk = median_point(anchor_kept).unwrap_or_default();
         let support = fusion.aabb.map(|b| {
             let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
-            let (b, planar) = if flat { snap_planar_to_wall(&b, anchor_kept, &context, eye, &params) } else { (b, Vec::new()) };
+            let (b, planar) = if flat { snap_planar_to_wall(&b, anchor_kept, &context, room.as_ref(), eye, &params) } else { (b, Vec::new()) };
             (b, moved, planar)
         });
         let support_ms = ms(tsup);

@@ -9,6 +9,11 @@
 //! `min_votes` surface votes and more surface than free votes is the surface; its depth
 //! is the vote-weighted mean over that run. Rays are cast on a grid of cells over the
 //! region, through the centroid of each cell's empty pixels, which take the ray's depth.
+//!
+//! A ray that no frame measured anything along may be given the room's layout
+//! ([`super::layout`]): where it leaves the room, if that lies beyond the sensor's range
+//! (the one reason a wall returns no reading from anywhere). The caller decides for which
+//! objects that holds (those flat against a wall).
 
 use nalgebra::{Matrix4, Point3};
 use rayon::prelude::*;
@@ -17,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::camera::transform_point;
 use super::consensus::Probe;
 use super::projection::{project_one, ProjectionError};
-use super::{DepthMap, FrameCamera, GeometryParams};
+use super::{DepthMap, FrameCamera, GeometryParams, RoomLayout};
 
 /// Settings of [`fill_depth`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -57,6 +62,8 @@ pub struct DepthFillStats {
     /// Rays cast, and those that met a surface.
     pub rays: usize,
     pub resolved: usize,
+    /// Rays ended on the room's layout (not counted in `resolved`).
+    pub placed: usize,
     /// Pixels given a depth.
     pub filled: usize,
     /// Cell side in depth pixels.
@@ -64,13 +71,15 @@ pub struct DepthFillStats {
 }
 
 /// Fill the empty depth pixels of `depth` (the depth image of `cam`) inside `region`, a box
-/// in colour pixels `[x0, y0, x1, y1]`, from the readings of `others`. Returns the completed
-/// depth map (a copy; pixels with a reading are never changed) and what was done.
+/// in colour pixels `[x0, y0, x1, y1]`, from the readings of `others`, and where none
+/// meets a surface, from `layout` (when given). Returns the completed depth map (a copy;
+/// pixels with a reading are never changed) and what was done.
 pub fn fill_depth(
     cam: &FrameCamera,
     depth: &DepthMap,
     region: [f32; 4],
     others: &[(&FrameCamera, &DepthMap)],
+    layout: Option<&RoomLayout>,
     params: &GeometryParams,
 ) -> Result<(DepthMap, DepthFillStats), ProjectionError> {
     let fp = &params.depth_fill;
@@ -105,7 +114,7 @@ pub fn fill_depth(
             }
         }
     }
-    let depths: Vec<Option<f64>> = cells
+    let depths: Vec<Option<(f64, bool)>> = cells
         .par_iter()
         .map(|empty| {
             // The ray through the centroid of the cell's empty pixels (not the cell's centre,
@@ -113,13 +122,20 @@ pub fn fill_depth(
             let n = empty.len() as f64;
             let (mx, my) = empty.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x as f64 / n, b + y as f64 / n));
             let (u, v) = color_pixel(cam, mx, my);
-            cast(cam, &cam_to_out, u, v, &samples, &views, params)
+            cast(cam, &cam_to_out, u, v, &samples, &views, params).map(|z| (z, false)).or_else(|| {
+                let z = layout?.exit_depth(cam, &cam_to_out, u, v)?;
+                (layout?.beyond_range(z, &params.layout) && z <= fp.far).then_some((z, true))
+            })
         })
         .collect();
     stats.rays = cells.len();
     for (empty, z) in cells.iter().zip(depths) {
-        let Some(z) = z else { continue };
-        stats.resolved += 1;
+        let Some((z, placed)) = z else { continue };
+        if placed {
+            stats.placed += 1;
+        } else {
+            stats.resolved += 1;
+        }
         let mm = (z * 1000.0).round().clamp(1.0, u16::MAX as f64) as u16;
         for &(x, y) in empty {
             out.data[y as usize * w + x as usize] = mm;
@@ -137,7 +153,7 @@ fn depth_rect(cam: &FrameCamera, b: [f32; 4]) -> (u32, u32, u32, u32) {
 }
 
 /// The colour pixel that reads depth pixel (x, y) (the inverse of `depth_lookup_pixel`).
-fn color_pixel(cam: &FrameCamera, x: f64, y: f64) -> (f64, f64) {
+pub(crate) fn color_pixel(cam: &FrameCamera, x: f64, y: f64) -> (f64, f64) {
     match &cam.depth {
         Some(d) => ((x - d.cx) / d.fx * cam.color.fx + cam.color.cx, (y - d.cy) / d.fy * cam.color.fy + cam.color.cy),
         None => (x * cam.color.width as f64 / cam.depth_size.0 as f64, y * cam.color.height as f64 / cam.depth_size.1 as f64),

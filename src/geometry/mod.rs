@@ -14,6 +14,7 @@ pub mod camera;
 pub mod cloud;
 pub mod consensus;
 pub mod depth_fill;
+pub mod layout;
 pub mod ensemble;
 pub mod mask;
 pub mod morph;
@@ -23,6 +24,8 @@ pub mod projection;
 pub mod support;
 #[cfg(test)]
 pub(crate) mod test_grid;
+#[cfg(test)]
+pub(crate) mod test_scene;
 pub mod walls;
 
 pub use boxes::Aabb;
@@ -31,6 +34,7 @@ pub use cloud::{
     chamfer_distance, neighbour_mean_distances, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
 };
 pub use depth_fill::{fill_depth, DepthFillParams, DepthFillStats};
+pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use consensus::{free_space_votes, mask_votes, ConsensusParams, MaskView};
 pub use ensemble::{
     chamfer_decisions, find_views, fuse_clouds, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,

@@ -72,6 +72,8 @@ pub struct GeometryParams {
     pub consensus: super::ConsensusParams,
     /// Depth completion of the chosen view from other views (ours; see `depth_fill.rs`).
     pub depth_fill: super::DepthFillParams,
+    /// The room's box, for rays no frame measured (ours; see `layout.rs`).
+    pub layout: super::LayoutParams,
     /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
     pub support: super::SupportParams,
 }
@@ -102,6 +104,7 @@ impl Default for GeometryParams {
             min_cluster_fraction: 0.1,
             consensus: super::ConsensusParams::default(),
             depth_fill: super::DepthFillParams::default(),
+            layout: super::LayoutParams::default(),
             support: super::SupportParams::default(),
         }
     }

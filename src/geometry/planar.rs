@@ -22,7 +22,7 @@ use serde::Serialize;
 
 use super::cloud::{remove_statistical_outliers, voxel_downsample};
 use super::support::SupportParams;
-use super::{Aabb, GeometryParams};
+use super::{Aabb, GeometryParams, RoomLayout};
 
 /// What was found on one horizontal axis.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -35,6 +35,8 @@ pub struct PlanarSnap {
     pub front: f64,
     /// The wall behind it, when one was found within reach.
     pub wall: Option<f64>,
+    /// The wall is the room's box (see [`super::layout`]), not a layer of the context.
+    pub room_wall: bool,
     /// The box's extent on the axis before.
     pub was: [f64; 2],
 }
@@ -93,15 +95,18 @@ const MIN_DEPTH: f64 = 0.01;
 
 /// Set the extent of `b` to [front plane, wall] on each horizontal axis where the anchor's
 /// points `anchor` are a plane facing `camera` (the anchor camera's centre) and the context
-/// points `context` (see [`super::support::context_points`]) hold a wall behind it. Every
-/// plane found is reported, with its wall or none. Off when `planar_iqr` is 0 or support
-/// completion is disabled.
-pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f64>], camera: [f64; 3], params: &GeometryParams) -> (Aabb, Vec<PlanarSnap>) {
+/// points `context` (see [`super::support::context_points`]) hold a wall behind it, or else
+/// the `room`'s box has one there (see [`super::layout`]).
+/// A plane lying on its wall (no frame resolved the object's front from the wall: its
+/// points were ended on the room's box) gets `layout.flat_depth` in front of the wall.
+/// Every plane found is reported, with its wall or none. Off when `planar_iqr` is 0 or
+/// support completion is disabled.
+pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f64>], room: Option<&RoomLayout>, camera: [f64; 3], params: &GeometryParams) -> (Aabb, Vec<PlanarSnap>) {
     const NAMES: [&str; 2] = ["x", "y"];
     let p = &params.support;
     let mut out = *b;
     let mut snaps = Vec::new();
-    if !p.enabled || p.planar_iqr <= 0.0 || context.is_empty() {
+    if !p.enabled || p.planar_iqr <= 0.0 || (context.is_empty() && room.is_none()) {
         return (out, snaps);
     }
     // The cloud single-view boxes use: one point per fusion voxel (even density, whatever
@@ -125,9 +130,19 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
         let mut slab = extent;
         slab.min[a] = front;
         slab.max[a] = front;
-        let wall = densest_layer(&slab, context, (a, sign), p);
-        snaps.push(PlanarSnap { axis: NAMES[a], iqr: iqr(a), front, wall, was: [b.min[a], b.max[a]] });
+        let centre = Point3::new((extent.min[0] + extent.max[0]) / 2.0, (extent.min[1] + extent.max[1]) / 2.0, (extent.min[2] + extent.max[2]) / 2.0);
+        let from_room = || {
+            let walls = room?.walls_on_axis(a, &centre);
+            walls.into_iter().filter(|w| (-p.layer..=p.planar_max_depth).contains(&(sign * (w - front)))).min_by(|x, y| (sign * (x - front)).total_cmp(&(sign * (y - front))))
+        };
+        let (wall, room_wall) = match densest_layer(&slab, context, (a, sign), p) {
+            Some(w) => (Some(w), false),
+            None => (from_room(), true),
+        };
+        snaps.push(PlanarSnap { axis: NAMES[a], iqr: iqr(a), front, wall, room_wall: room_wall && wall.is_some(), was: [b.min[a], b.max[a]] });
         if let Some(wall) = wall {
+            // On its wall: the object's front was never seen apart from it.
+            let front = if sign * (wall - front) < MIN_DEPTH { wall - sign * params.layout.flat_depth } else { front };
             out.min[a] = front.min(wall);
             out.max[a] = front.max(wall);
         }
@@ -171,12 +186,37 @@ mod tests {
         let window = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.03, None);
         let wall = plane_y(6.11, (0.4, 2.2), (0.7, 2.4), 0.01, Some([0.7, 1.9, 1.0, 2.1]));
         let fused = Aabb::new([0.68, 5.9, 0.98], [1.92, 6.2, 2.12]);
-        let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, [1.3, 3.0, 1.5], &GeometryParams::default());
+        let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], &GeometryParams::default());
         assert_eq!(snaps.len(), 1, "{snaps:?}");
         assert_eq!(snaps[0].axis, "y");
         assert!(snaps[0].applied());
         assert!((b.min[1] - 6.05).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01, "{b:?}");
         assert_eq!((b.min[0], b.max[0], b.min[2], b.max[2]), (0.68, 1.92, 0.98, 2.12));
+    }
+
+    #[test]
+    fn a_window_no_frame_measured_gets_its_depth_in_front_of_the_rooms_wall() {
+        use crate::geometry::RoomLayout;
+        // The window's points were ended on the room's wall y = 6.11 (no reading anywhere);
+        // nothing measured around it.
+        let window = plane_y(6.11, (0.7, 1.9), (1.0, 2.1), 0.0, None);
+        let b = Aabb::new([0.7, 6.11, 1.0], [1.9, 6.11, 2.1]);
+        let room = RoomLayout { angle_deg: 0.0, u: [Some(0.0), Some(5.0)], v: [Some(0.0), Some(6.11)], faced: [true; 4], floor: Some(0.0), ceiling: None, range: 5.0, points: 1000 };
+        let gp = GeometryParams::default();
+        let (got, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&room), [1.3, 1.0, 1.5], &gp);
+        assert!(snaps.len() == 1 && snaps[0].applied() && snaps[0].room_wall, "{snaps:?}");
+        assert!((got.min[1] - (6.11 - gp.layout.flat_depth)).abs() < 1e-6 && (got.max[1] - 6.11).abs() < 1e-6, "{got:?}");
+        // A window measured 6 cm in front of that wall spans to it (the room's wall stands
+        // in for a wall the context missed).
+        let measured = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.005, None);
+        let (got, _) = snap_planar_to_wall(&Aabb::new([0.7, 6.04, 1.0], [1.9, 6.06, 2.1]), &measured, &[], Some(&room), [1.3, 1.0, 1.5], &gp);
+        assert!((got.min[1] - 6.05).abs() < 0.01 && (got.max[1] - 6.11).abs() < 1e-6, "{got:?}");
+        // Without a room and a context, nothing to snap to.
+        assert_eq!(snap_planar_to_wall(&b, &window, &[], None, [1.3, 1.0, 1.5], &gp), (b, vec![]));
+        // A room's wall 1 m behind the plane is out of reach.
+        let far = RoomLayout { v: [Some(0.0), Some(7.11)], ..room };
+        let (same, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&far), [1.3, 1.0, 1.5], &gp);
+        assert!(same == b && !snaps[0].applied(), "{snaps:?}");
     }
 
     #[test]
@@ -189,11 +229,11 @@ mod tests {
             cabinet.extend(plane_y(5.6 + 0.02 * k as f64, (0.7, 1.9), (0.9, 0.9), 0.0, None));
         }
         let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
-        assert_eq!(snap_planar_to_wall(&b, &cabinet, &wall, [1.3, 3.0, 1.5], &gp), (b, vec![]), "not a plane");
+        assert_eq!(snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], &gp), (b, vec![]), "not a plane");
         // A screen standing 40 cm in front of the wall: the wall is too far to be its back.
         let screen = plane_y(5.7, (0.7, 1.9), (0.2, 0.9), 0.02, None);
         let b = Aabb::new([0.7, 5.66, 0.2], [1.9, 5.74, 0.9]);
-        let (same, snaps) = snap_planar_to_wall(&b, &screen, &wall, [1.3, 3.0, 1.5], &gp);
+        let (same, snaps) = snap_planar_to_wall(&b, &screen, &wall, None, [1.3, 3.0, 1.5], &gp);
         assert_eq!(same, b);
         assert!(snaps.len() == 1 && !snaps[0].applied(), "a plane, but no wall within reach: {snaps:?}");
         // A chair seen from behind: its back is a plane, its seat lies behind it, but only
@@ -205,16 +245,16 @@ mod tests {
             seat.extend(plane_y(2.02 + 0.01 * k as f64, (0.95, 1.5), (0.43, 0.43), 0.0, None));
         }
         let b = Aabb::new([1.0, 1.98, 0.0], [1.45, 2.45, 0.95]);
-        let (same, snaps) = snap_planar_to_wall(&b, &back, &seat, [1.2, 0.5, 1.2], &gp);
+        let (same, snaps) = snap_planar_to_wall(&b, &back, &seat, None, [1.2, 0.5, 1.2], &gp);
         assert_eq!(same, b, "{snaps:?}");
         // Seen from behind the wall (camera at y > 6.11), the wall is on the camera's side.
         let window = plane_y(6.05, (0.7, 1.9), (0.0, 1.0), 0.02, None);
         let b = Aabb::new([0.7, 6.0, 0.0], [1.9, 6.1, 1.0]);
-        assert_eq!(snap_planar_to_wall(&b, &window, &wall, [1.3, 8.0, 1.5], &gp).0, b);
+        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 8.0, 1.5], &gp).0, b);
         // Off switches.
         let mut off = gp.clone();
         off.support.planar_iqr = 0.0;
-        assert_eq!(snap_planar_to_wall(&b, &window, &wall, [1.3, 3.0, 1.5], &off).1, vec![]);
-        assert!(snap_planar_to_wall(&b, &window, &wall, [1.3, 3.0, 1.5], &gp).1[0].applied());
+        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], &off).1, vec![]);
+        assert!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], &gp).1[0].applied());
     }
 }

@@ -1,51 +1,5 @@
 use super::*;
-use crate::geometry::camera::look_at_pose;
-use crate::geometry::Intrinsics;
-use nalgebra::Vector3;
-
-/// Colour 80x60, depth 40x30 (ratio rule, no depth K).
-fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
-    let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
-    let pose = look_at_pose(Point3::from(eye), Point3::from(target), Vector3::z());
-    FrameCamera { color, depth: None, depth_size: (40, 30), pose, align: Matrix4::identity() }
-}
-
-/// Depth of a scene of axis-aligned boxes `[min, max]` seen by `cam`, with readings beyond
-/// `range` metres dropped.
-fn render(cam: &FrameCamera, boxes: &[([f64; 3], [f64; 3])], range: f64) -> DepthMap {
-    let (w, h) = cam.depth_size;
-    let m = cam.cam_to_out();
-    let mut data = vec![0u16; (w * h) as usize];
-    for y in 0..h {
-        for x in 0..w {
-            let (u, v) = color_pixel(cam, x as f64, y as f64);
-            let o = transform_point(&m, &Point3::origin());
-            let d = transform_point(&m, &cam.color.unproject(u, v, 1.0)) - o; // one metre of depth
-            let mut best = f64::INFINITY;
-            for (lo, hi) in boxes {
-                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-                for k in 0..3 {
-                    if d[k].abs() < 1e-12 {
-                        if o[k] < lo[k] || o[k] > hi[k] {
-                            t1 = -1.0;
-                        }
-                        continue;
-                    }
-                    let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-                    t0 = t0.max(a.min(b));
-                    t1 = t1.min(a.max(b));
-                }
-                if t0 <= t1 && t0 > 0.0 {
-                    best = best.min(t0);
-                }
-            }
-            if best <= range {
-                data[(y * w + x) as usize] = (best * 1000.0).round() as u16;
-            }
-        }
-    }
-    DepthMap::new(w, h, data)
-}
+use crate::geometry::test_scene::{camera, render};
 
 /// A wall: the plane y = 0 (its front face), 10 m wide and 3 m high.
 const WALL: ([f64; 3], [f64; 3]) = ([-5.0, 0.0, 0.0], [5.0, 0.1, 3.0]);
@@ -59,7 +13,7 @@ fn a_wall_beyond_range_gets_the_depth_nearer_views_measured() {
     let maps: Vec<DepthMap> = near.iter().map(|c| render(c, &[WALL], 5.0)).collect();
     let others: Vec<(&FrameCamera, &DepthMap)> = near.iter().zip(&maps).collect();
     let p = GeometryParams::default();
-    let (filled, stats) = fill_depth(&far, &depth, [30.0, 20.0, 50.0, 40.0], &others, &p).unwrap();
+    let (filled, stats) = fill_depth(&far, &depth, [30.0, 20.0, 50.0, 40.0], &others, None, &p).unwrap();
     // The box reads depth pixels [15, 26) x [10, 21): all missing, all reached.
     let holes: Vec<(u32, u32)> = (10..21).flat_map(|y| (15..26).map(move |x| (x, y))).filter(|&(x, y)| filled.get(x, y) == 0).collect();
     assert_eq!((stats.missing, stats.rays, stats.filled), (121, 121, 121), "{stats:?} {holes:?}");
@@ -90,7 +44,7 @@ fn readings_stay_and_the_nearest_surface_wins() {
     let near: Vec<FrameCamera> = [[-1.5, -3.0, 1.5], [1.5, -3.0, 1.5], [0.0, -3.5, 1.8]].iter().map(|&e| camera(e, [0.0, -0.8, 1.0])).collect();
     let maps: Vec<DepthMap> = near.iter().map(|c| render(c, &[WALL, cabinet], 5.0)).collect();
     let others: Vec<(&FrameCamera, &DepthMap)> = near.iter().zip(&maps).collect();
-    let (filled, stats) = fill_depth(&far, &depth, [0.0, 0.0, 80.0, 60.0], &others, &GeometryParams::default()).unwrap();
+    let (filled, stats) = fill_depth(&far, &depth, [0.0, 0.0, 80.0, 60.0], &others, None, &GeometryParams::default()).unwrap();
     assert!(stats.resolved > 0, "{stats:?}");
     assert_eq!(filled.get(2, 15), kept, "a reading is never replaced");
     // The cabinet's face is 5.0 m away (y = -1): the ray stops there, not at the wall.
@@ -107,10 +61,57 @@ fn rays_no_other_view_measures_stay_empty() {
     // One view only: below `min_votes`.
     let near = camera([0.0, -2.0, 1.5], [0.0, 0.0, 1.5]);
     let map = render(&near, &[WALL], 5.0);
-    let (filled, stats) = fill_depth(&far, &depth, [0.0, 0.0, 80.0, 60.0], &[(&near, &map)], &GeometryParams::default()).unwrap();
+    let (filled, stats) = fill_depth(&far, &depth, [0.0, 0.0, 80.0, 60.0], &[(&near, &map)], None, &GeometryParams::default()).unwrap();
     assert_eq!((stats.resolved, stats.filled), (0, 0), "{stats:?}");
     assert!(filled.data.iter().all(|&d| d == 0));
     // A view whose depth does not match its camera is an error, not a panic.
     let bad = DepthMap::new(10, 10, vec![0; 100]);
-    assert!(fill_depth(&far, &bad, [0.0, 0.0, 80.0, 60.0], &[], &GeometryParams::default()).is_err());
+    assert!(fill_depth(&far, &bad, [0.0, 0.0, 80.0, 60.0], &[], None, &GeometryParams::default()).is_err());
+}
+
+#[test]
+fn rays_nothing_measured_end_on_the_room_only_beyond_range() {
+    use crate::geometry::{estimate_room, LayoutParams};
+    // A 12 m long room; the cameras of two rings measure all of it, the anchor at x = 3
+    // looks down its length at the far wall (x = 12, beyond the 5 m range).
+    let slab = |a: [f64; 3], b: [f64; 3]| (a, b);
+    let room = [
+        slab([-0.1, -0.1, -0.1], [12.1, 5.1, 0.0]),
+        slab([-0.1, -0.1, 2.7], [12.1, 5.1, 2.8]),
+        slab([-0.1, -0.1, 0.0], [0.0, 5.1, 2.7]),
+        slab([12.0, -0.1, 0.0], [12.1, 5.1, 2.7]),
+        slab([-0.1, -0.1, 0.0], [12.1, 0.0, 2.7]),
+        slab([-0.1, 5.0, 0.0], [12.1, 5.1, 2.7]),
+    ];
+    let mut cams = Vec::new();
+    for cx in [3.0, 9.0] {
+        for k in 0..12 {
+            let a = f64::from(k) * 30f64.to_radians();
+            cams.push(camera([cx + 0.6 * a.cos(), 2.5 + 0.6 * a.sin(), 1.5], [cx + 3.0 * a.cos(), 2.5 + 3.0 * a.sin(), if k % 2 == 0 { 1.0 } else { 2.3 }]));
+        }
+    }
+    let maps: Vec<DepthMap> = cams.iter().map(|c| render(c, &room, 5.0)).collect();
+    let frames: Vec<(&FrameCamera, &DepthMap)> = cams.iter().zip(&maps).collect();
+    let layout = estimate_room(&frames, &LayoutParams { sample_step: 1, ..LayoutParams::default() }).expect("a layout");
+    let anchor = camera([3.0, 2.5, 1.5], [12.0, 2.5, 1.5]);
+    let depth = render(&anchor, &room, 5.0);
+    let p = GeometryParams::default();
+    // The box's pixels all look at the far wall, 9 m away: no reading, no voter.
+    let region = [30.0, 20.0, 50.0, 40.0];
+    let (same, stats) = fill_depth(&anchor, &depth, region, &[], None, &p).unwrap();
+    assert_eq!((stats.placed, stats.filled), (0, 0), "without the layout nothing is filled");
+    assert_eq!(same, depth);
+    let (filled, stats) = fill_depth(&anchor, &depth, region, &[], Some(&layout), &p).unwrap();
+    assert_eq!((stats.resolved, stats.placed, stats.filled), (0, 121, 121), "{stats:?}");
+    let truth = render(&anchor, &room, 100.0);
+    for (x, y) in [(15, 10), (20, 15), (25, 20)] {
+        let (got, want) = (f64::from(filled.get(x, y)), f64::from(truth.get(x, y)));
+        assert!((got - want).abs() < 60.0, "({x}, {y}): {got} mm, the wall is at {want} mm");
+    }
+    // A hole where the side wall is 2.5 m away is no sign of distance: it stays.
+    let side = camera([3.0, 2.5, 1.5], [3.0, 0.0, 1.5]);
+    let mut holed = render(&side, &room, 5.0);
+    holed.data.iter_mut().for_each(|d| *d = 0);
+    let (_, stats) = fill_depth(&side, &holed, region, &[], Some(&layout), &p).unwrap();
+    assert_eq!((stats.placed, stats.filled), (0, 0), "{stats:?}");
 }

@@ -1,0 +1,109 @@
+use super::*;
+use crate::geometry::test_scene::{camera, render};
+
+type Slab = ([f64; 3], [f64; 3]);
+
+/// A room [0, w] x [0, d] x [0, h] as six 10 cm slabs, and a table in it.
+fn room(w: f64, d: f64, h: f64) -> Vec<Slab> {
+    vec![
+        ([-0.1, -0.1, -0.1], [w + 0.1, d + 0.1, 0.0]),
+        ([-0.1, -0.1, h], [w + 0.1, d + 0.1, h + 0.1]),
+        ([-0.1, -0.1, 0.0], [0.0, d + 0.1, h]),
+        ([w, -0.1, 0.0], [w + 0.1, d + 0.1, h]),
+        ([-0.1, -0.1, 0.0], [w + 0.1, 0.0, h]),
+        ([-0.1, d, 0.0], [w + 0.1, d + 0.1, h]),
+        ([w / 2.0 - 0.5, d / 2.0 - 0.4, 0.0], [w / 2.0 + 0.5, d / 2.0 + 0.4, 0.75]),
+    ]
+}
+
+/// Twelve cameras on a circle of radius `r` around (cx, cy) at 1.5 m, looking outwards,
+/// down and up by turns.
+fn ring(cx: f64, cy: f64, r: f64) -> Vec<FrameCamera> {
+    (0..12)
+        .map(|k| {
+            let a = f64::from(k) * 30f64.to_radians();
+            let eye = [cx + r * a.cos(), cy + r * a.sin(), 1.5];
+            camera(eye, [cx + 3.0 * a.cos(), cy + 3.0 * a.sin(), if k % 2 == 0 { 1.0 } else { 2.3 }])
+        })
+        .collect()
+}
+
+fn params() -> LayoutParams {
+    // The test frames are 40 x 30: every depth pixel is sampled.
+    LayoutParams { sample_step: 1, ..LayoutParams::default() }
+}
+
+/// The layout from `cams`' depth of `scene`, read in an output frame turned by `turn`
+/// degrees about +z (the scene is rendered in the world frame).
+fn estimate(cams: &[FrameCamera], scene: &[Slab], range: f64, turn: f64) -> Option<RoomLayout> {
+    let maps: Vec<DepthMap> = cams.iter().map(|c| render(c, scene, range)).collect();
+    let turned: Vec<FrameCamera> = cams.iter().map(|c| FrameCamera { align: Matrix4::new_rotation(Vector3::z() * turn.to_radians()), ..*c }).collect();
+    let frames: Vec<(&FrameCamera, &DepthMap)> = turned.iter().zip(&maps).collect();
+    estimate_room(&frames, &params())
+}
+
+fn near(a: Option<f64>, b: f64, tol: f64) -> bool {
+    a.is_some_and(|a| (a - b).abs() <= tol)
+}
+
+#[test]
+fn a_box_room_is_found_with_its_floor_ceiling_and_walls() {
+    let l = estimate(&ring(3.0, 2.5, 0.8), &room(6.0, 5.0, 2.7), 5.0, 0.0).expect("a layout");
+    assert!(l.angle_deg.abs() < 0.5, "{l:?}");
+    assert!(near(l.floor, 0.0, 0.03) && near(l.ceiling, 2.7, 0.03), "{l:?}");
+    assert!(near(l.u[0], 0.0, 0.03) && near(l.u[1], 6.0, 0.03), "{l:?}");
+    assert!(near(l.v[0], 0.0, 0.03) && near(l.v[1], 5.0, 0.03), "{l:?}");
+    assert!(l.range <= 5.0 && l.range > 2.5, "{l:?}");
+    assert_eq!(l.faced, [true; 4]);
+    // From the centre along +x the ray leaves through the wall at x = 6; upwards through
+    // the ceiling; from outside the room there is no answer.
+    let t = l.exit(&Point3::new(3.0, 2.5, 1.5), &Vector3::new(2.0, 0.0, 0.0)).expect("an exit");
+    assert!((t - 1.5).abs() < 0.02, "t = {t}");
+    assert!(near(l.exit(&Point3::new(3.0, 2.5, 1.5), &Vector3::z()), 1.2, 0.03));
+    assert_eq!(l.exit(&Point3::new(7.0, 2.5, 1.5), &Vector3::x()), None);
+    // The x walls, at any height and position along them.
+    let xs = l.walls_on_axis(0, &Point3::new(1.0, 4.0, 0.3));
+    assert!(xs.len() == 2 && xs.iter().any(|&x| x.abs() < 0.03) && xs.iter().any(|&x| (x - 6.0).abs() < 0.03), "{xs:?}");
+}
+
+#[test]
+fn a_turned_room_is_found_in_its_own_axes() {
+    let l = estimate(&ring(3.0, 2.5, 0.8), &room(6.0, 5.0, 2.7), 5.0, 30.0).expect("a layout");
+    assert!((l.angle_deg - 30.0).abs() < 0.5, "{l:?}");
+    assert!(near(l.u[0], 0.0, 0.04) && near(l.u[1], 6.0, 0.04) && near(l.v[0], 0.0, 0.04) && near(l.v[1], 5.0, 0.04), "{l:?}");
+    // Its walls are 30 degrees off both output axes: none counts as an x or y wall.
+    assert!(l.walls_on_axis(0, &Point3::origin()).is_empty() && l.walls_on_axis(1, &Point3::origin()).is_empty());
+}
+
+#[test]
+fn a_wall_no_frame_measured_stays_open() {
+    // A 14 m long room, all cameras near its x = 0 end with a 5 m range: the far wall at
+    // x = 14 is never read, so rays towards it have no end; the other sides are found.
+    let cams = ring(2.0, 2.5, 0.6);
+    let l = estimate(&cams, &room(14.0, 5.0, 2.7), 5.0, 0.0).expect("a layout");
+    assert_eq!(l.u[1], None, "{l:?}");
+    assert!(near(l.u[0], 0.0, 0.03) && near(l.v[0], 0.0, 0.03) && near(l.v[1], 5.0, 0.03), "{l:?}");
+    assert!(near(l.exit(&Point3::new(2.0, 2.5, 1.5), &-Vector3::x()), 2.0, 0.03), "towards the wall that was found");
+    // Towards the open side, even a ray that would meet the ceiling first: the missing wall
+    // might be nearer still.
+    assert_eq!(l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::x()), None);
+    assert_eq!(l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::new(0.5, 0.0, 1.0)), None);
+    // No frames, or frames without readings: nothing to estimate.
+    assert_eq!(estimate_room(&[], &params()), None);
+    let blank = render(&cams[0], &room(14.0, 5.0, 2.7), 0.1);
+    assert_eq!(estimate_room(&[(&cams[0], &blank)], &params()), None);
+}
+
+#[test]
+fn walls_no_frame_faced_are_where_the_measured_surfaces_end() {
+    // An 8 x 6 m room whose short walls (x = 0, x = 8) are left out of the rendering, as
+    // if no frame had faced them: the floor and the long walls end at x = -0.1 and 8.1 in
+    // every frame that looks that way.
+    let mut scene = room(8.0, 6.0, 2.7);
+    scene.drain(2..4);
+    let l = estimate(&ring(4.0, 3.0, 1.5), &scene, 5.0, 0.0).expect("a layout");
+    assert!(near(l.v[0], 0.0, 0.03) && near(l.v[1], 6.0, 0.03), "{l:?}");
+    // Within the 40 x 30 test frames' last sampled floor row (a pixel spans ~10 cm there).
+    assert!(near(l.u[0], -0.1, 0.25) && near(l.u[1], 8.1, 0.25), "{l:?}");
+    assert_eq!(l.faced, [false, false, true, true], "{l:?}");
+}

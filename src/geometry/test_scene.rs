@@ -1,0 +1,53 @@
+//! Test helper: small posed cameras and depth rendered from axis-aligned boxes (shared by
+//! the geometry modules' tests).
+
+use nalgebra::{Matrix4, Point3, Vector3};
+
+use super::camera::{look_at_pose, transform_point};
+use super::depth_fill::color_pixel;
+use super::{DepthMap, FrameCamera, Intrinsics};
+
+/// Colour 80x60, depth 40x30 (ratio rule, no depth K).
+pub(crate) fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
+    let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
+    let pose = look_at_pose(Point3::from(eye), Point3::from(target), Vector3::z());
+    FrameCamera { color, depth: None, depth_size: (40, 30), pose, align: Matrix4::identity() }
+}
+
+/// Depth of a scene of axis-aligned boxes `[min, max]` seen by `cam`, with readings beyond
+/// `range` metres dropped.
+pub(crate) fn render(cam: &FrameCamera, boxes: &[([f64; 3], [f64; 3])], range: f64) -> DepthMap {
+    let (w, h) = cam.depth_size;
+    let m = cam.cam_to_out();
+    let mut data = vec![0u16; (w * h) as usize];
+    for y in 0..h {
+        for x in 0..w {
+            let (u, v) = color_pixel(cam, x as f64, y as f64);
+            let o = transform_point(&m, &Point3::origin());
+            let d = transform_point(&m, &cam.color.unproject(u, v, 1.0)) - o; // one metre of depth
+            let mut best = f64::INFINITY;
+            for (lo, hi) in boxes {
+                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+                for k in 0..3 {
+                    if d[k].abs() < 1e-12 {
+                        if o[k] < lo[k] || o[k] > hi[k] {
+                            t1 = -1.0;
+                        }
+                        continue;
+                    }
+                    let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
+                    t0 = t0.max(a.min(b));
+                    t1 = t1.min(a.max(b));
+                }
+                if t0 <= t1 && t0 > 0.0 {
+                    best = best.min(t0);
+                }
+            }
+            if best <= range {
+                data[(y * w + x) as usize] = (best * 1000.0).round() as u16;
+            }
+        }
+    }
+    DepthMap::new(w, h, data)
+}
+
