@@ -10,10 +10,11 @@
 //! is the vote-weighted mean over that run. Rays are cast on a grid of cells over the
 //! region, through the centroid of each cell's empty pixels, which take the ray's depth.
 //!
-//! A ray that no frame measured anything along may be given the room's layout
-//! ([`super::layout`]): where it leaves the room, if that lies beyond the sensor's range
-//! (the one reason a wall returns no reading from anywhere). The caller decides for which
-//! objects that holds (those flat against a wall).
+//! When the region stays mostly unmeasured (under `layout.max_measured` read or filled), a
+//! ray that met nothing may be given the room's layout ([`super::layout`]): where it leaves
+//! the room, if that lies beyond the sensor's range (the one reason a wall returns no
+//! reading from anywhere). The caller decides for which objects that holds (those flat
+//! against a wall).
 
 use nalgebra::{Matrix4, Point3};
 use rayon::prelude::*;
@@ -114,7 +115,7 @@ pub fn fill_depth(
             }
         }
     }
-    let depths: Vec<Option<(f64, bool)>> = cells
+    let depths: Vec<(Option<f64>, (f64, f64))> = cells
         .par_iter()
         .map(|empty| {
             // The ray through the centroid of the cell's empty pixels (not the cell's centre,
@@ -122,9 +123,19 @@ pub fn fill_depth(
             let n = empty.len() as f64;
             let (mx, my) = empty.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x as f64 / n, b + y as f64 / n));
             let (u, v) = color_pixel(cam, mx, my);
-            cast(cam, &cam_to_out, u, v, &samples, &views, params).map(|z| (z, false)).or_else(|| {
-                let z = layout?.exit_depth(cam, &cam_to_out, u, v)?;
-                (layout?.beyond_range(z, &params.layout) && z <= fp.far).then_some((z, true))
+            (cast(cam, &cam_to_out, u, v, &samples, &views, params), (u, v))
+        })
+        .collect();
+    // Rays nothing met, ended on the room's box when the region is mostly unmeasured.
+    let voted: usize = cells.iter().zip(&depths).filter(|(_, d)| d.0.is_some()).map(|(c, _)| c.len()).sum();
+    let measured = (area - stats.missing as f64 + voted as f64) / area.max(1.0);
+    let room = layout.filter(|_| measured < params.layout.max_measured);
+    let depths: Vec<Option<(f64, bool)>> = depths
+        .into_iter()
+        .map(|(z, (u, v))| {
+            z.map(|z| (z, false)).or_else(|| {
+                let z = room?.exit_depth(cam, &cam_to_out, u, v)?;
+                (room?.beyond_range(z, &params.layout) && z <= fp.far).then_some((z, true))
             })
         })
         .collect();

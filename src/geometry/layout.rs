@@ -47,6 +47,10 @@ pub struct LayoutParams {
     pub min_spread: f64,
     /// The sensor's range is this quantile of all readings.
     pub range_quantile: f64,
+    /// The room's box is used only for a region whose depth pixels are less than this share
+    /// read or filled from other frames: an object that was measured is not mixed with
+    /// points put on its wall.
+    pub max_measured: f64,
     /// A ray without any reading is ended on the room's box only when it leaves the room at
     /// least `range - range_margin` deep: nearer, a missing reading is no sign of distance
     /// (a dark or glossy surface, a grazing angle) and the object may stand anywhere.
@@ -61,7 +65,7 @@ pub struct LayoutParams {
 
 impl Default for LayoutParams {
     fn default() -> Self {
-        Self { enabled: true, sample_step: 8, max_points: 60_000, bin: 0.02, min_points: 40, min_spread: 1.0, range_quantile: 0.999, range_margin: 0.3, end_frames: 2, flat_depth: 0.05 }
+        Self { enabled: true, sample_step: 8, max_points: 60_000, bin: 0.02, min_points: 40, min_spread: 1.0, range_quantile: 0.999, max_measured: 0.5, range_margin: 0.3, end_frames: 2, flat_depth: 0.05 }
     }
 }
 
@@ -80,7 +84,10 @@ pub struct RoomLayout {
     pub ceiling: Option<f64>,
     /// The sensor's range (m), from the readings.
     pub range: f64,
-    /// Points the estimate used.
+    /// How far the measured points reach on u, v and z (low, high): an open side lies at
+    /// least that far.
+    pub reach: [[f64; 2]; 3],
+    /// Points sampled (layers and the turn use at most `max_points` of them).
     pub points: usize,
 }
 
@@ -215,24 +222,42 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
             eyes.push(e);
         }
     }
-    if samples.len() > p.max_points.max(1) {
-        let k = samples.len().div_ceil(p.max_points.max(1));
-        samples = samples.into_iter().step_by(k).collect();
-    }
+
     if samples.len() < p.min_points || eyes.is_empty() {
         return None;
     }
+    // Where each frame's points end, on the full samples (thinning moves the ends).
+    let frame_ends = |samples: &[Sample], angle: f64| {
+        let (s, c) = angle.to_radians().sin_cos();
+        let mut per_frame: Vec<[Vec<f64>; 2]> = vec![[Vec::new(), Vec::new()]; frames.len()];
+        for q in samples {
+            per_frame[q.frame][0].push(c * q.p.x + s * q.p.y);
+            per_frame[q.frame][1].push(-s * q.p.x + c * q.p.y);
+        }
+        let mut ends: [Vec<(f64, f64)>; 2] = [Vec::new(), Vec::new()];
+        for f in per_frame.iter_mut() {
+            for (axis, v) in f.iter_mut().enumerate() {
+                if v.len() > 2 * END_RANK {
+                    v.sort_by(f64::total_cmp);
+                    ends[axis].push((v[END_RANK], v[v.len() - 1 - END_RANK]));
+                }
+            }
+        }
+        ends
+    };
+    let full = samples;
+    let samples: Vec<&Sample> = full.iter().step_by(full.len().div_ceil(p.max_points.max(1)).max(1)).collect();
     let range = quantile(&mut readings, p.range_quantile)?;
     let ext = |v: &mut dyn Iterator<Item = f64>| v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
     // Floor and ceiling from the surfaces facing up or down.
-    let level: Vec<&Sample> = samples.iter().filter(|s| s.n.z.abs() >= FACING).collect();
+    let level: Vec<&Sample> = samples.iter().copied().filter(|s| s.n.z.abs() >= FACING).collect();
     let (xs, ys, zs): (Vec<f64>, Vec<f64>, Vec<f64>) = (level.iter().map(|s| s.p.x).collect(), level.iter().map(|s| s.p.y).collect(), level.iter().map(|s| s.p.z).collect());
     let (eye_lo, eye_hi) = ext(&mut eyes.iter().map(|e| e.z));
     let floor = outer_layer(&zs, &[&xs, &ys], true, eye_lo, p);
     let ceiling = outer_layer(&zs, &[&xs, &ys], false, eye_hi, p);
     // Walls from the surfaces facing sideways: the turn that makes their horizontal
     // coordinates most peaked, then each turned axis's outermost layers facing along it.
-    let upright: Vec<&Sample> = samples.iter().filter(|s| s.n.z.abs() <= 1.0 - FACING).collect();
+    let upright: Vec<&Sample> = samples.iter().copied().filter(|s| s.n.z.abs() <= 1.0 - FACING).collect();
     let xy: Vec<[f64; 2]> = {
         let k = upright.len().div_ceil(20_000).max(1);
         upright.iter().step_by(k).map(|s| [s.p.x, s.p.y]).collect()
@@ -240,6 +265,7 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     let best = |angles: &mut dyn Iterator<Item = f64>| angles.map(|a| (a, peakedness(&xy, a.to_radians(), p.bin))).max_by(|a, b| a.1.total_cmp(&b.1)).map(|(a, _)| a);
     let coarse = best(&mut (-45..45).map(f64::from))?;
     let angle_deg = best(&mut (-10..=10).map(|k| coarse + 0.1 * f64::from(k)))?;
+    let frame_ends = frame_ends(&full, angle_deg);
     let (s, c) = angle_deg.to_radians().sin_cos();
     let turn = |x: f64, y: f64| (c * x + s * y, -s * x + c * y);
     let mut walls: [[Option<(f64, bool)>; 2]; 2] = [[None, None], [None, None]];
@@ -264,22 +290,7 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
         // they faced it) still ends what the frames measured: where the walls along it and
         // the floor meet it. Several frames must end there: the range ends each frame's
         // points somewhere else, a wall ends them all at the same place.
-        let coord = |q: &Sample| {
-            let (u, v) = turn(q.p.x, q.p.y);
-            if axis == 0 { u } else { v }
-        };
-        let mut per_frame: Vec<Vec<f64>> = vec![Vec::new(); frames.len()];
-        for q in &samples {
-            per_frame[q.frame].push(coord(q));
-        }
-        let ends: Vec<(f64, f64)> = per_frame
-            .iter_mut()
-            .filter(|c| c.len() > 2 * END_RANK)
-            .map(|c| {
-                c.sort_by(f64::total_cmp);
-                (c[END_RANK], c[c.len() - 1 - END_RANK])
-            })
-            .collect();
+        let ends = &frame_ends[axis];
         let end = |mut e: Vec<f64>, limit: f64| {
             e.sort_by(f64::total_cmp);
             let first = *e.first()?;
@@ -296,12 +307,32 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     let [u, v] = walls;
     let faced = [u[0].is_some_and(|w| w.1), u[1].is_some_and(|w| w.1), v[0].is_some_and(|w| w.1), v[1].is_some_and(|w| w.1)];
     let (u, v) = (u.map(|w| w.map(|w| w.0)), v.map(|w| w.map(|w| w.0)));
-    Some(RoomLayout { angle_deg, u, v, faced, floor, ceiling, range, points: samples.len() })
+    let reach = [0, 1, 2].map(|axis| {
+        let ends = if axis < 2 { frame_ends[axis].clone() } else { frame_ends_z(&full) };
+        ends.iter().fold([f64::INFINITY, f64::NEG_INFINITY], |[a, b], e| [a.min(e.0), b.max(e.1)])
+    });
+    Some(RoomLayout { angle_deg, u, v, faced, floor, ceiling, reach, points: full.len(), range })
 }
 
-/// A frame's end along an axis is its sample of this rank from that end (not the very
-/// last: a stray reading).
-const END_RANK: usize = 2;
+/// Each frame's ends along +z (see [`END_RANK`]).
+fn frame_ends_z(samples: &[Sample]) -> Vec<(f64, f64)> {
+    let mut per_frame: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
+    for q in samples {
+        per_frame.entry(q.frame).or_default().push(q.p.z);
+    }
+    per_frame
+        .into_values()
+        .filter(|v| v.len() > 2 * END_RANK)
+        .map(|mut v| {
+            v.sort_by(f64::total_cmp);
+            (v[END_RANK], v[v.len() - 1 - END_RANK])
+        })
+        .collect()
+}
+
+/// A frame's end along an axis is its sample of this rank from that end (0: the last; a
+/// stray reading is caught by asking several frames to agree).
+const END_RANK: usize = 0;
 
 /// |cos| between a normal and an axis for the surface to count as facing along it.
 const FACING: f64 = 0.8;
@@ -313,24 +344,26 @@ impl RoomLayout {
     }
 
     /// The parameter t at which the ray `o + t d` (t > 0) leaves the box through a side
-    /// that was found; `None` when `o` is outside the box or the ray leaves through an
-    /// open side.
+    /// that was found; `None` when `o` is outside the box or the ray may leave through an
+    /// open side first (it gets past the measured points' `reach` on that side before).
     pub fn exit(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Option<f64> {
         let (ou, ov) = self.turn(o.x, o.y);
         let (du, dv) = self.turn(d.x, d.y);
-        let sides = [(ou, du, self.u), (ov, dv, self.v), (o.z, d.z, [self.floor, self.ceiling])];
-        let mut t_exit = f64::INFINITY;
-        for (oc, dc, [lo, hi]) in sides {
+        let sides = [(ou, du, self.u, self.reach[0]), (ov, dv, self.v, self.reach[1]), (o.z, d.z, [self.floor, self.ceiling], self.reach[2])];
+        // Through the sides found; an open side is no further than... unknown, but at least
+        // as far as anything measured: the ray is inside the room until it gets there.
+        let (mut t_exit, mut t_known) = (f64::INFINITY, f64::INFINITY);
+        for (oc, dc, [lo, hi], [rlo, rhi]) in sides {
             if lo.is_some_and(|l| oc < l) || hi.is_some_and(|h| oc > h) {
                 return None;
             }
-            let bound = if dc > 1e-12 { hi } else if dc < -1e-12 { lo } else { continue };
+            let (bound, reach) = if dc > 1e-12 { (hi, rhi) } else if dc < -1e-12 { (lo, rlo) } else { continue };
             match bound {
                 Some(b) => t_exit = t_exit.min((b - oc) / dc),
-                None => return None,
+                None => t_known = t_known.min((reach - oc) / dc),
             }
         }
-        (t_exit.is_finite() && t_exit > 0.0).then_some(t_exit)
+        (t_exit.is_finite() && t_exit > 0.0 && t_exit <= t_known).then_some(t_exit)
     }
 
     /// Camera depth at which the viewing ray through colour pixel (u, v) of `cam` leaves

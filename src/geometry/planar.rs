@@ -201,7 +201,7 @@ mod tests {
         // nothing measured around it.
         let window = plane_y(6.11, (0.7, 1.9), (1.0, 2.1), 0.0, None);
         let b = Aabb::new([0.7, 6.11, 1.0], [1.9, 6.11, 2.1]);
-        let room = RoomLayout { angle_deg: 0.0, u: [Some(0.0), Some(5.0)], v: [Some(0.0), Some(6.11)], faced: [true; 4], floor: Some(0.0), ceiling: None, range: 5.0, points: 1000 };
+        let room = RoomLayout { angle_deg: 0.0, u: [Some(0.0), Some(5.0)], v: [Some(0.0), Some(6.11)], faced: [true; 4], floor: Some(0.0), ceiling: None, reach: [[0.0, 5.0], [0.0, 6.11], [0.0, 2.5]], range: 5.0, points: 1000 };
         let gp = GeometryParams::default();
         let (got, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&room), [1.3, 1.0, 1.5], &gp);
         assert!(snaps.len() == 1 && snaps[0].applied() && snaps[0].room_wall, "{snaps:?}");

@@ -108,6 +108,16 @@ fn rays_nothing_measured_end_on_the_room_only_beyond_range() {
         let (got, want) = (f64::from(filled.get(x, y)), f64::from(truth.get(x, y)));
         assert!((got - want).abs() < 60.0, "({x}, {y}): {got} mm, the wall is at {want} mm");
     }
+    // A region mostly read (a wall 3 m away fills its left part) is an object that was
+    // measured: its empty part is not put on the wall behind.
+    let mut half = depth.clone();
+    for y in 10..21 {
+        for x in 15..22 {
+            half.data[(y * 40 + x) as usize] = 3000;
+        }
+    }
+    let (_, stats) = fill_depth(&anchor, &half, region, &[], Some(&layout), &p).unwrap();
+    assert_eq!((stats.missing, stats.placed), (44, 0), "{stats:?}");
     // A hole where the side wall is 2.5 m away is no sign of distance: it stays.
     let side = camera([3.0, 2.5, 1.5], [3.0, 0.0, 1.5]);
     let mut holed = render(&side, &room, 5.0);
