@@ -169,7 +169,8 @@ fn spread(mut v: Vec<f64>) -> f64 {
 /// `lateral` coordinates, lying beyond `limit` (outside the cameras). Its median coordinate.
 fn outer_layer(coord: &[f64], lateral: &[&[f64]], from_low: bool, limit: f64, p: &LayoutParams) -> Option<f64> {
     let (lo, hi) = coord.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &c| (a.min(c), b.max(c)));
-    if !(lo.is_finite() && hi.is_finite()) || p.bin <= 0.0 {
+    // A wild (finite) pose can spread the points over kilometres: no histogram then.
+    if !(lo.is_finite() && hi.is_finite()) || p.bin <= 0.0 || (hi - lo) / p.bin > MAX_BINS {
         return None;
     }
     let n = ((hi - lo) / p.bin).floor() as usize + 1;
@@ -333,6 +334,9 @@ fn frame_ends_z(samples: &[Sample]) -> Vec<(f64, f64)> {
 /// A frame's end along an axis is its sample of this rank from that end (0: the last; a
 /// stray reading is caught by asking several frames to agree).
 const END_RANK: usize = 0;
+
+/// Most bins a layer histogram may have (2 km at 2 cm).
+const MAX_BINS: f64 = 100_000.0;
 
 /// |cos| between a normal and an axis for the surface to count as facing along it.
 const FACING: f64 = 0.8;

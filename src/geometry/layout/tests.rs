@@ -111,3 +111,16 @@ fn walls_no_frame_faced_are_where_the_measured_surfaces_end() {
     assert!(near(l.u[0], -0.1, 0.25) && near(l.u[1], 8.1, 0.25), "{l:?}");
     assert_eq!(l.faced, [false, false, true, true], "{l:?}");
 }
+
+#[test]
+fn a_frame_posed_far_away_does_not_blow_up_the_histograms() {
+    let mut cams = ring(3.0, 2.5, 0.8);
+    let scene = room(6.0, 5.0, 2.7);
+    let maps: Vec<DepthMap> = cams.iter().map(|c| render(c, &scene, 5.0)).collect();
+    // Its depth is real, its pose 10^6 km off (finite, so the frame counts as usable):
+    // a histogram over that span would need 5 * 10^10 bins.
+    cams[0].pose[(0, 3)] += 1.0e9;
+    let frames: Vec<(&FrameCamera, &DepthMap)> = cams.iter().zip(&maps).collect();
+    let l = estimate_room(&frames, &params()).expect("the heights are still fine");
+    assert!(near(l.floor, 0.0, 0.03) && near(l.u[0], 0.0, 0.03) && l.u[1].is_none(), "{l:?}");
+}
