@@ -227,25 +227,7 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     if samples.len() < p.min_points || eyes.is_empty() {
         return None;
     }
-    // Where each frame's points end, on the full samples (thinning moves the ends).
-    let frame_ends = |samples: &[Sample], angle: f64| {
-        let (s, c) = angle.to_radians().sin_cos();
-        let mut per_frame: Vec<[Vec<f64>; 2]> = vec![[Vec::new(), Vec::new()]; frames.len()];
-        for q in samples {
-            per_frame[q.frame][0].push(c * q.p.x + s * q.p.y);
-            per_frame[q.frame][1].push(-s * q.p.x + c * q.p.y);
-        }
-        let mut ends: [Vec<(f64, f64)>; 2] = [Vec::new(), Vec::new()];
-        for f in per_frame.iter_mut() {
-            for (axis, v) in f.iter_mut().enumerate() {
-                if v.len() > 2 * END_RANK {
-                    v.sort_by(f64::total_cmp);
-                    ends[axis].push((v[END_RANK], v[v.len() - 1 - END_RANK]));
-                }
-            }
-        }
-        ends
-    };
+    // Frame ends (`frame_ends`) are taken on the full samples: thinning moves them.
     let full = samples;
     let samples: Vec<&Sample> = full.iter().step_by(full.len().div_ceil(p.max_points.max(1)).max(1)).collect();
     let range = quantile(&mut readings, p.range_quantile)?;
@@ -266,7 +248,7 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     let best = |angles: &mut dyn Iterator<Item = f64>| angles.map(|a| (a, peakedness(&xy, a.to_radians(), p.bin))).max_by(|a, b| a.1.total_cmp(&b.1)).map(|(a, _)| a);
     let coarse = best(&mut (-45..45).map(f64::from))?;
     let angle_deg = best(&mut (-10..=10).map(|k| coarse + 0.1 * f64::from(k)))?;
-    let frame_ends = frame_ends(&full, angle_deg);
+    let frame_ends = frame_ends(&full, frames.len(), angle_deg);
     let (s, c) = angle_deg.to_radians().sin_cos();
     let turn = |x: f64, y: f64| (c * x + s * y, -s * x + c * y);
     let mut walls: [[Option<(f64, bool)>; 2]; 2] = [[None, None], [None, None]];
@@ -309,26 +291,33 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     let faced = [u[0].is_some_and(|w| w.1), u[1].is_some_and(|w| w.1), v[0].is_some_and(|w| w.1), v[1].is_some_and(|w| w.1)];
     let (u, v) = (u.map(|w| w.map(|w| w.0)), v.map(|w| w.map(|w| w.0)));
     let reach = [0, 1, 2].map(|axis| {
-        let ends = if axis < 2 { frame_ends[axis].clone() } else { frame_ends_z(&full) };
+        let ends = &frame_ends[axis];
         ends.iter().fold([f64::INFINITY, f64::NEG_INFINITY], |[a, b], e| [a.min(e.0), b.max(e.1)])
     });
     Some(RoomLayout { angle_deg, u, v, faced, floor, ceiling, reach, points: full.len(), range })
 }
 
-/// Each frame's ends along +z (see [`END_RANK`]).
-fn frame_ends_z(samples: &[Sample]) -> Vec<(f64, f64)> {
-    let mut per_frame: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
+/// Where each frame's samples end (see [`END_RANK`]) along u and v (turned by `angle`
+/// degrees) and z: for each of the three, one (low, high) pair per frame with enough
+/// samples, in frame order.
+fn frame_ends(samples: &[Sample], frames: usize, angle: f64) -> [Vec<(f64, f64)>; 3] {
+    let (s, c) = angle.to_radians().sin_cos();
+    let mut per_frame: Vec<[Vec<f64>; 3]> = vec![[Vec::new(), Vec::new(), Vec::new()]; frames];
     for q in samples {
-        per_frame.entry(q.frame).or_default().push(q.p.z);
+        per_frame[q.frame][0].push(c * q.p.x + s * q.p.y);
+        per_frame[q.frame][1].push(-s * q.p.x + c * q.p.y);
+        per_frame[q.frame][2].push(q.p.z);
     }
-    per_frame
-        .into_values()
-        .filter(|v| v.len() > 2 * END_RANK)
-        .map(|mut v| {
-            v.sort_by(f64::total_cmp);
-            (v[END_RANK], v[v.len() - 1 - END_RANK])
-        })
-        .collect()
+    let mut ends: [Vec<(f64, f64)>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+    for f in per_frame.iter_mut() {
+        for (axis, v) in f.iter_mut().enumerate() {
+            if v.len() > 2 * END_RANK {
+                v.sort_by(f64::total_cmp);
+                ends[axis].push((v[END_RANK], v[v.len() - 1 - END_RANK]));
+            }
+        }
+    }
+    ends
 }
 
 /// A frame's end along an axis is its sample of this rank from that end (0: the last; a
