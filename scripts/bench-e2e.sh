@@ -7,7 +7,9 @@
 # Environment (defaults in brackets): BENCH_DIR [target/bench-e2e], SCENES [5],
 # FRAMES [60], COLOR_SIZE [1296x968], DEPTH_SIZE [640x480], SEED [100], JOBS [2],
 # WORKERS [2], GROUNDER_BIN [built with cargo build --release], REPORT [docs/benchmark-e2e.md],
-# REPORT_ONLY [unset; 1 = only rewrite the report from the runs already in $BENCH_DIR].
+# REPORT_ONLY [unset; 1 = only rewrite the report from the runs already in $BENCH_DIR],
+# ONLY [unset; e.g. "0 depth:edges=on" = run and report that one configuration alone;
+# set REPORT elsewhere then].
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -70,6 +72,7 @@ fi
 NQ=$(wc -l <"$DATA/ds/queries.jsonl")
 
 CONFIGS=("0 depth" "0.2 depth" "0 box")
+[[ -n "${ONLY:-}" ]] && CONFIGS=("$ONLY")
 for c in "${CONFIGS[@]}"; do
     [[ "${REPORT_ONLY:-}" == 1 ]] && break
     read -r err seg <<<"$c"

@@ -17,7 +17,7 @@ use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
-use crate::geometry::ensemble::{chamfer_decisions, find_views, fuse_clouds, mask_points, single_view_box, CandidateFrame};
+use crate::geometry::ensemble::{chamfer_decisions, find_views_with_room, fuse_clouds, mask_points, single_view_box, CandidateFrame};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{estimate_room, fill_depth, voxel_downsample, RoomLayout, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
 use crate::jobs::{JobContext, JobFailure};
@@ -111,12 +111,18 @@ pub async fn room_layout(g: &VlmGrounder, ctx: &JobContext, target_class: &str) 
 /// frames (`geometry::fill_depth`) and the room's `layout`, when that is on, and what it did
 /// for the trace (null when off; the reason when the frame could not be completed, which
 /// leaves it as it was).
-fn complete_anchor_depth(scene: &crate::scene::SceneData, mut anchor: FrameData, bbox: [f32; 4], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
+fn complete_anchor_depth(scene: &crate::scene::SceneData, anchor: FrameData, bbox: [f32; 4], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
     if !params.depth_fill.enabled {
         return (anchor, serde_json::Value::Null);
     }
     let others: Vec<_> = scene.usable_frames().filter(|f| f.idx != anchor.idx).map(|f| (&f.camera, f.depth.as_ref())).collect();
-    match fill_depth(&anchor.camera, &anchor.depth, bbox, &others, layout, params) {
+    complete_depth(anchor, bbox, &others, layout, params)
+}
+
+/// `frame` with the empty depth pixels inside `bbox` completed from `others` and `layout`
+/// (see [`complete_anchor_depth`]).
+fn complete_depth(mut anchor: FrameData, bbox: [f32; 4], others: &[(&crate::geometry::FrameCamera, &crate::geometry::DepthMap)], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
+    match fill_depth(&anchor.camera, &anchor.depth, bbox, others, layout, params) {
         Ok((depth, stats)) => {
             if stats.filled > 0 {
                 anchor.depth = Arc::new(depth);
@@ -144,6 +150,10 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
     .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
     let ViewCloud { mask: anchor_mask, points: anchor_pts, context: anchor_ctx, wall_cuts } = cloud;
+    // No frame measured the object (its points were ended on the room's box): the other
+    // views are found, and their depth completed, with the room too.
+    let placed = fill.get("placed").and_then(serde_json::Value::as_u64).is_some_and(|n| n > 0);
+    let view_room = layout.clone().filter(|_| placed);
     step(
         ctx,
         "segmentation",
@@ -160,10 +170,10 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     // Views that see the anchor points.
     let others: Vec<usize> = scene.usable_frames().map(|f| f.idx).filter(|&i| i != choice.frame_idx).collect();
     let params = g.params.geometry.clone();
-    let (sc, ap) = (scene.clone(), anchor_pts.clone());
+    let (sc, ap, vr) = (scene.clone(), anchor_pts.clone(), view_room.clone());
     let views = tokio::task::spawn_blocking(move || {
         let cands: Vec<CandidateFrame> = others.iter().map(|&i| CandidateFrame { index: i, camera: &sc.frames[i].camera, depth: &sc.frames[i].depth }).collect();
-        find_views(&ap, &cands, &params)
+        find_views_with_room(&ap, &cands, vr.as_ref(), &params)
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("view search failed: {e}")))?;
@@ -193,6 +203,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     let (seg, params, sc, vb, room) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone(), layout);
     let anchor_idx = choice.frame_idx;
+    let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
     let (fusion, single, support, votes, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
         let ts = Instant::now();
@@ -200,7 +211,11 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
             .par_iter()
             .filter_map(|(i, b, _)| {
                 let img: &Arc<RgbImage> = decoded.get(i)?;
-                segment_points(seg.as_ref(), &sc.frames[*i], img, *b, &params, cut_walls).ok().map(|c| (*i, c))
+                let frame = match &view_room {
+                    Some(room) => complete_depth(sc.frames[*i].clone(), *b, &[], Some(room), &params).0,
+                    None => sc.frames[*i].clone(),
+                };
+                segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls).ok().map(|c| (*i, c))
             })
             .filter(|(_, c)| !c.points.is_empty())
             .collect();
@@ -254,7 +269,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         let bulk = median_point(anchor_kept).unwrap_or_default();
         let support = fusion.aabb.map(|b| {
             let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
-            let (b, planar) = if flat { snap_planar_to_wall(&b, anchor_kept, &context, room.as_ref(), eye, &params) } else { (b, Vec::new()) };
+            let (b, planar) = if flat { snap_planar_to_wall(&b, anchor_kept, &context, room.as_ref(), eye, flat_depth, &params) } else { (b, Vec::new()) };
             (b, moved, planar)
         });
         let support_ms = ms(tsup);

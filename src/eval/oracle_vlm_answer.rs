@@ -249,7 +249,9 @@ fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
     }
 }
 
-/// The best image id: among the offered (else all) frames, not rejected, most target pixels.
+/// The best image id: among the offered (else all) frames, not rejected, the one that
+/// shows the target best ([`SceneTruth::visibility`]: most pixels, halved when cut by the
+/// image border).
 pub fn best_frame(
     scene: &SceneTruth,
     target: u32,
@@ -267,7 +269,7 @@ pub fn best_frame(
         ids.iter()
             .copied()
             .filter(|&i| scene.pixels(i, target) > 0)
-            .max_by_key(|&i| (scene.pixels(i, target), std::cmp::Reverse(i)))
+            .max_by_key(|&i| (scene.visibility(i, target), std::cmp::Reverse(i)))
     };
     // Not visible in any offered frame: answer the best frame overall and let feedback work.
     pick(&pool)
@@ -333,7 +335,7 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             let mut id = best
                 .or_else(|| offered.and_then(|o| o.first().copied()))
                 .unwrap_or(0);
-            let mut why = "the target is largest in this frame".to_string();
+            let mut why = "the target is shown best in this frame".to_string();
             if kind == 0 {
                 if let Some(other) = offered.and_then(|o| o.iter().copied().find(|&i| i != id)) {
                     id = other;
@@ -369,5 +371,43 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             }
             json!({"reasoning": format!("oracle: {why}"), "object_id": id}).to_string()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::oracle_vlm_truth::{FrameTruth, InstanceStat};
+    use std::collections::HashMap;
+
+    fn frame(size: (u32, u32), target: Option<(u64, [f32; 4])>) -> FrameTruth {
+        let mut instances = HashMap::new();
+        if let Some((pixels, bbox)) = target {
+            instances.insert(7, InstanceStat { pixels, bbox });
+        }
+        FrameTruth { name: String::new(), color: None, size, instances }
+    }
+
+    #[test]
+    fn a_whole_view_beats_a_larger_close_up_cut_by_the_border() {
+        let scene = SceneTruth {
+            frames: vec![
+                // 0: close-up running off the right and bottom edges, 60k pixels.
+                frame((640, 480), Some((60_000, [300.0, 200.0, 640.0, 480.0]))),
+                // 1: the whole object, 40k pixels.
+                frame((640, 480), Some((40_000, [100.0, 100.0, 400.0, 300.0]))),
+                // 2: whole but small.
+                frame((640, 480), Some((5_000, [10.0, 10.0, 90.0, 90.0]))),
+                // 3: not visible.
+                frame((640, 480), None),
+            ],
+        };
+        assert!(scene.cut_by_border(0, 7) && !scene.cut_by_border(1, 7) && !scene.cut_by_border(3, 7));
+        assert_eq!(best_frame(&scene, 7, None, &[]), Some(1));
+        // A cut view still wins over a much smaller whole one.
+        assert_eq!(best_frame(&scene, 7, Some(&[0, 2]), &[]), Some(0));
+        assert_eq!(best_frame(&scene, 7, Some(&[0, 2]), &[0]), Some(2));
+        // Nothing offered shows it: the best overall.
+        assert_eq!(best_frame(&scene, 7, Some(&[3]), &[]), Some(1));
     }
 }

@@ -59,6 +59,28 @@ impl SceneTruth {
             .and_then(|f| f.instances.get(&instance))
             .map_or(0, |s| s.pixels)
     }
+
+    /// Does the image border cut `instance` in frame `image_id` (its box reaches within
+    /// 0.5 % of the image size of an edge)? False when absent.
+    pub fn cut_by_border(&self, image_id: u32, instance: u32) -> bool {
+        let Some(f) = self.frames.get(image_id as usize) else { return false };
+        let Some(s) = f.instances.get(&instance) else { return false };
+        let (w, h) = (f.size.0 as f32, f.size.1 as f32);
+        let (mx, my) = ((0.005 * w).max(1.0), (0.005 * h).max(1.0));
+        s.bbox[0] < mx || s.bbox[1] < my || s.bbox[2] > w - mx || s.bbox[3] > h - my
+    }
+
+    /// How well frame `image_id` shows `instance`: its pixels, halved when the image
+    /// border cuts it (a close-up of part of a chair shows the chair less well than a
+    /// slightly smaller view of all of it).
+    pub fn visibility(&self, image_id: u32, instance: u32) -> u64 {
+        let px = self.pixels(image_id, instance);
+        if self.cut_by_border(image_id, instance) {
+            px / 2
+        } else {
+            px
+        }
+    }
 }
 
 /// Queries plus lazily loaded scenes.
@@ -315,7 +337,42 @@ fn histogram(img: &image::DynamicImage) -> [f32; 64] {
     h
 }
 
-/// L1 distance of two histograms.
+/// L1 distance of two histograms, both taken without their darkest bin and renormalised.
+/// A stitched grid with fewer frames than tiles is mostly black padding; with that bin in,
+/// the padding outweighs what the frames show and any scene can come out closest.
 pub fn hist_distance(a: &[f32; 64], b: &[f32; 64]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum()
+    let rest = |h: &[f32; 64]| h[1..].iter().sum::<f32>().max(1e-6);
+    let (na, nb) = (rest(a), rest(b));
+    a[1..].iter().zip(&b[1..]).map(|(x, y)| (x / na - y / nb).abs()).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hist_of(tiles: &[[u8; 3]]) -> [f32; 64] {
+        // One 8x8 tile per colour, side by side.
+        let mut img = image::RgbImage::new(8 * tiles.len() as u32, 8);
+        for (x, y, p) in img.enumerate_pixels_mut() {
+            *p = image::Rgb(tiles[(x / 8) as usize]);
+            let _ = y;
+        }
+        histogram(&image::DynamicImage::ImageRgb8(img))
+    }
+
+    #[test]
+    fn grid_padding_does_not_decide_the_scene() {
+        let red = [200, 40, 40];
+        let blue = [40, 40, 200];
+        let black = [0, 0, 0];
+        // Scene A's frames are red; scene B's are dark with some blue.
+        let a = hist_of(&[red]);
+        let b = hist_of(&[black, black, black, blue, blue]);
+        // A grid of one red frame and three padding tiles.
+        let grid = hist_of(&[red, black, black, black]);
+        assert!(hist_distance(&grid, &a) < hist_distance(&grid, &b));
+        assert!(hist_distance(&a, &a).abs() < 1e-6);
+        // All black on both sides: no information, no panic, finite.
+        assert!(hist_distance(&hist_of(&[black]), &hist_of(&[black])).is_finite());
+    }
 }

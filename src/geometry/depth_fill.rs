@@ -147,9 +147,18 @@ pub fn fill_depth(
         } else {
             stats.resolved += 1;
         }
-        let mm = (z * 1000.0).round().clamp(1.0, u16::MAX as f64) as u16;
+        let mm = |z: f64| (z * 1000.0).round().clamp(1.0, u16::MAX as f64) as u16;
         for &(x, y) in empty {
-            out.data[y as usize * w + x as usize] = mm;
+            // A ray ended on the room's box: each pixel gets its own exit, so the points lie
+            // on the wall (the cell's one depth would tilt them off it by the wall's slant).
+            let z = match room.filter(|_| placed) {
+                Some(room) => {
+                    let (u, v) = color_pixel(cam, x as f64, y as f64);
+                    room.exit_depth(cam, &cam_to_out, u, v).filter(|e| room.beyond_range(*e, &params.layout) && *e <= fp.far).unwrap_or(z)
+                }
+                None => z,
+            };
+            out.data[y as usize * w + x as usize] = mm(z);
             stats.filled += 1;
         }
     }

@@ -8,8 +8,8 @@ use serde::Serialize;
 use super::cloud::{
     chamfer_distance, cluster_keep, neighbour_mean_distances, remove_statistical_outliers, subsample_even, voxel_downsample,
 };
-use super::projection::{project_points, ProjectionError};
-use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
+use super::projection::{project_points, Projected, ProjectionError};
+use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask, RoomLayout};
 
 /// One frame that may join the ensemble.
 #[derive(Debug, Clone, Copy)]
@@ -56,6 +56,20 @@ pub fn find_views(
     candidates: &[CandidateFrame<'_>],
     params: &GeometryParams,
 ) -> Vec<ViewCandidate> {
+    find_views_with_room(anchor_points, candidates, None, params)
+}
+
+/// [`find_views`] for an anchor whose points depth completion ended on the room's box
+/// (no frame measured the object: it lies beyond the sensor's range). A point a frame has
+/// no reading for also counts as seen there when the frame's ray through it leaves the
+/// `room` at the point's depth (within the visibility tolerance), beyond the range: the
+/// frame would have put it in the same place.
+pub fn find_views_with_room(
+    anchor_points: &[Point3<f64>],
+    candidates: &[CandidateFrame<'_>],
+    room: Option<&RoomLayout>,
+    params: &GeometryParams,
+) -> Vec<ViewCandidate> {
     if anchor_points.is_empty() {
         return Vec::new();
     }
@@ -65,11 +79,18 @@ pub fn find_views(
         .filter_map(|c| {
             let proj = project_points(&probe, c.camera, c.depth, params).ok()?;
             let (w, h) = (c.camera.color.width, c.camera.color.height);
+            let cam_to_out = c.camera.cam_to_out();
+            let on_room = |q: &Projected| {
+                let inside = q.u >= -0.5 && q.v >= -0.5 && q.u < w as f64 - 0.5 && q.v < h as f64 - 0.5;
+                let Some(room) = room.filter(|_| inside && q.measured.is_none()) else { return false };
+                room.exit_depth(c.camera, &cam_to_out, q.u, q.v)
+                    .is_some_and(|e| room.beyond_range(e, &params.layout) && (e - q.z).abs() <= params.visibility_tolerance(q.z))
+            };
             let mut seen = vec![false; w as usize * h as usize];
             let mut pixels = Vec::new();
             let (mut x1, mut y1, mut x2, mut y2) = (u32::MAX, u32::MAX, 0u32, 0u32);
             let mut n = 0usize;
-            for q in proj.iter().flatten().filter(|q| q.visible) {
+            for q in proj.iter().flatten().filter(|q| q.visible || on_room(q)) {
                 n += 1;
                 let x = (q.u.round().max(0.0) as u32).min(w - 1);
                 let y = (q.v.round().max(0.0) as u32).min(h - 1);

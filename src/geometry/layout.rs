@@ -25,6 +25,7 @@
 
 use nalgebra::{Matrix4, Point3, Vector3};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 use super::camera::{is_finite_matrix, transform_point};
 use super::{DepthMap, FrameCamera};
@@ -59,13 +60,33 @@ pub struct LayoutParams {
     /// faced to be placed there.
     pub end_frames: usize,
     /// Depth (m) given to a flat object whose points lie on its wall (no frame resolved
-    /// its front from the wall).
+    /// its front from the wall), unless `class_depth` names its class.
     pub flat_depth: f64,
+    /// Depth (m) by class for the same case: the usual thickness of the thing itself (a
+    /// picture's frame, a door's leaf), matched like the support classes (whole name or
+    /// last word, singular or plural).
+    pub class_depth: BTreeMap<String, f64>,
+}
+
+impl LayoutParams {
+    /// The depth given to a flat object of `class` lying on its wall.
+    pub fn flat_depth_for(&self, class: &str) -> f64 {
+        self.class_depth
+            .iter()
+            .find(|(c, _)| super::support::class_in(std::slice::from_ref(*c), class))
+            .map_or(self.flat_depth, |(_, d)| *d)
+    }
 }
 
 impl Default for LayoutParams {
     fn default() -> Self {
-        Self { enabled: true, sample_step: 8, max_points: 60_000, bin: 0.02, min_points: 40, min_spread: 1.0, range_quantile: 0.999, max_measured: 0.5, range_margin: 0.3, end_frames: 2, flat_depth: 0.05 }
+        // Framed pictures and boards are a few centimetres deep; doors and windows keep
+        // `flat_depth`.
+        let class_depth = [("picture", 0.03), ("painting", 0.03), ("poster", 0.01), ("photo", 0.02), ("frame", 0.03), ("mirror", 0.03), ("whiteboard", 0.02), ("blackboard", 0.02), ("board", 0.02), ("sign", 0.01)]
+            .into_iter()
+            .map(|(c, d)| (c.to_string(), d))
+            .collect();
+        Self { enabled: true, sample_step: 8, max_points: 60_000, bin: 0.02, min_points: 40, min_spread: 1.0, range_quantile: 0.999, max_measured: 0.5, range_margin: 0.3, end_frames: 2, flat_depth: 0.05, class_depth }
     }
 }
 

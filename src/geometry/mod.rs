@@ -39,7 +39,7 @@ pub use depth_fill::{fill_depth, DepthFillParams, DepthFillStats};
 pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use consensus::{free_space_votes, mask_votes, ConsensusParams, MaskView};
 pub use ensemble::{
-    chamfer_decisions, find_views, fuse_clouds, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
+    chamfer_decisions, find_views, find_views_with_room, fuse_clouds, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
     ViewCandidate, ViewDecision,
 };
 pub use mask::Mask;

@@ -93,15 +93,24 @@ fn densest_layer(slab: &Aabb, context: &[Point3<f64>], (axis, sign): (usize, f64
 /// Nearest a wall may be behind a plane (m): nearer, it is the plane's own noise.
 const MIN_DEPTH: f64 = 0.01;
 
+/// Distance (m) within which a point counts as lying on one of the room's walls: points
+/// put there by depth completion sit on it up to rounding; measured ones scatter by
+/// centimetres.
+pub const ON_ROOM_WALL: f64 = 0.002;
+
 /// Set the extent of `b` to [front plane, wall] on each horizontal axis where the anchor's
 /// points `anchor` are a plane facing `camera` (the anchor camera's centre) and the context
 /// points `context` (see [`super::support::context_points`]) hold a wall behind it, or else
 /// the `room`'s box has one there (see [`super::layout`]).
 /// A plane lying on its wall (no frame resolved the object's front from the wall: its
-/// points were ended on the room's box) gets `layout.flat_depth` in front of the wall.
+/// points were ended on the room's box, or it meets the wall found behind it) gets
+/// `flat_depth` in front of that wall. When most of the anchor's points lie on one of the
+/// room's walls (within [`ON_ROOM_WALL`]: depth completion ends the rays no frame measured
+/// exactly there, while measured points scatter by the sensor's noise), that wall is the
+/// object's, whatever layer the context shows nearby.
 /// Every plane found is reported, with its wall or none. Off when `planar_iqr` is 0 or
 /// support completion is disabled.
-pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f64>], room: Option<&RoomLayout>, camera: [f64; 3], params: &GeometryParams) -> (Aabb, Vec<PlanarSnap>) {
+pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f64>], room: Option<&RoomLayout>, camera: [f64; 3], flat_depth: f64, params: &GeometryParams) -> (Aabb, Vec<PlanarSnap>) {
     const NAMES: [&str; 2] = ["x", "y"];
     let p = &params.support;
     let mut out = *b;
@@ -135,14 +144,26 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
             let walls = room?.walls_on_axis(a, &centre);
             walls.into_iter().filter(|w| (-p.layer..=p.planar_max_depth).contains(&(sign * (w - front)))).min_by(|x, y| (sign * (x - front)).total_cmp(&(sign * (y - front))))
         };
-        let (wall, room_wall) = match densest_layer(&slab, context, (a, sign), p) {
-            Some(w) => (Some(w), false),
-            None => (from_room(), true),
+        // The room's wall the anchor's points were ended on, if most of them were.
+        // (Each point against the wall where it stands: a wall turned a little off the axis
+        // moves by millimetres along the object.)
+        let placed_on = || {
+            let room = room?;
+            let n = room.walls_on_axis(a, &centre).len();
+            let on = |k: usize| anchor.iter().filter(|q| room.walls_on_axis(a, q).get(k).is_some_and(|w| (q[a] - w).abs() <= ON_ROOM_WALL)).count();
+            (0..n).find(|&k| 2 * on(k) >= anchor.len()).and_then(|k| room.walls_on_axis(a, &centre).get(k).copied())
+        };
+        let (wall, room_wall, on_wall) = match placed_on() {
+            Some(w) => (Some(w), true, true),
+            None => match densest_layer(&slab, context, (a, sign), p) {
+                Some(w) => (Some(w), false, false),
+                None => (from_room(), true, false),
+            },
         };
         snaps.push(PlanarSnap { axis: NAMES[a], iqr: iqr(a), front, wall, room_wall: room_wall && wall.is_some(), was: [b.min[a], b.max[a]] });
         if let Some(wall) = wall {
             // On its wall: the object's front was never seen apart from it.
-            let front = if sign * (wall - front) < MIN_DEPTH { wall - sign * params.layout.flat_depth } else { front };
+            let front = if on_wall || sign * (wall - front) < MIN_DEPTH { wall - sign * flat_depth } else { front };
             out.min[a] = front.min(wall);
             out.max[a] = front.max(wall);
         }
@@ -186,7 +207,7 @@ mod tests {
         let window = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.03, None);
         let wall = plane_y(6.11, (0.4, 2.2), (0.7, 2.4), 0.01, Some([0.7, 1.9, 1.0, 2.1]));
         let fused = Aabb::new([0.68, 5.9, 0.98], [1.92, 6.2, 2.12]);
-        let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], &GeometryParams::default());
+        let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &GeometryParams::default());
         assert_eq!(snaps.len(), 1, "{snaps:?}");
         assert_eq!(snaps[0].axis, "y");
         assert!(snaps[0].applied());
@@ -203,20 +224,49 @@ mod tests {
         let b = Aabb::new([0.7, 6.11, 1.0], [1.9, 6.11, 2.1]);
         let room = RoomLayout { angle_deg: 0.0, u: [Some(0.0), Some(5.0)], v: [Some(0.0), Some(6.11)], faced: [true; 4], floor: Some(0.0), ceiling: None, reach: [[0.0, 5.0], [0.0, 6.11], [0.0, 2.5]], range: 5.0, points: 1000 };
         let gp = GeometryParams::default();
-        let (got, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&room), [1.3, 1.0, 1.5], &gp);
+        let (got, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&room), [1.3, 1.0, 1.5], gp.layout.flat_depth, &gp);
         assert!(snaps.len() == 1 && snaps[0].applied() && snaps[0].room_wall, "{snaps:?}");
         assert!((got.min[1] - (6.11 - gp.layout.flat_depth)).abs() < 1e-6 && (got.max[1] - 6.11).abs() < 1e-6, "{got:?}");
         // A window measured 6 cm in front of that wall spans to it (the room's wall stands
         // in for a wall the context missed).
         let measured = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.005, None);
-        let (got, _) = snap_planar_to_wall(&Aabb::new([0.7, 6.04, 1.0], [1.9, 6.06, 2.1]), &measured, &[], Some(&room), [1.3, 1.0, 1.5], &gp);
+        let (got, _) = snap_planar_to_wall(&Aabb::new([0.7, 6.04, 1.0], [1.9, 6.06, 2.1]), &measured, &[], Some(&room), [1.3, 1.0, 1.5], 0.05, &gp);
         assert!((got.min[1] - 6.05).abs() < 0.01 && (got.max[1] - 6.11).abs() < 1e-6, "{got:?}");
         // Without a room and a context, nothing to snap to.
-        assert_eq!(snap_planar_to_wall(&b, &window, &[], None, [1.3, 1.0, 1.5], &gp), (b, vec![]));
+        assert_eq!(snap_planar_to_wall(&b, &window, &[], None, [1.3, 1.0, 1.5], gp.layout.flat_depth, &gp), (b, vec![]));
         // A room's wall 1 m behind the plane is out of reach.
         let far = RoomLayout { v: [Some(0.0), Some(7.11)], ..room };
-        let (same, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&far), [1.3, 1.0, 1.5], &gp);
+        let (same, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&far), [1.3, 1.0, 1.5], gp.layout.flat_depth, &gp);
         assert!(same == b && !snaps[0].applied(), "{snaps:?}");
+    }
+
+    #[test]
+    fn a_picture_ended_on_the_rooms_wall_keeps_that_wall_over_a_layer_behind_it() {
+        use crate::geometry::RoomLayout;
+        // Depth completion put the picture's points on the room's wall x = 6.99; the
+        // context, measured at the range's end, holds a noisy layer 2.5 cm behind it.
+        // The room is turned by 1 degree: its wall's x changes by 12 mm along the picture.
+        let room = RoomLayout { angle_deg: 1.0, u: [Some(0.0), Some(6.99)], v: [Some(0.0), Some(5.0)], faced: [true; 4], floor: Some(0.0), ceiling: None, reach: [[0.0, 6.99], [0.0, 5.0], [0.0, 2.5]], range: 5.0, points: 1000 };
+        let (s1, c1) = 1f64.to_radians().sin_cos();
+        let wall_x = |y: f64| (6.99 - s1 * y) / c1;
+        let picture: Vec<Point3<f64>> = plane_y(0.0, (2.5, 3.2), (1.4, 1.9), 0.0, None).into_iter().map(|p| Point3::new(wall_x(p.x), p.x, p.z)).collect();
+        let layer: Vec<Point3<f64>> = plane_y(0.0, (2.2, 3.5), (1.1, 2.2), 0.0, Some([2.5, 3.2, 1.4, 1.9])).into_iter().enumerate().map(|(i, p)| Point3::new(wall_x(p.x) + 0.025 + 0.005 * jitter(i, 3), p.x, p.z)).collect();
+        let b = Aabb::new([6.9, 2.5, 1.4], [7.0, 3.2, 1.9]);
+        let gp = GeometryParams::default();
+        let depth = gp.layout.flat_depth_for("purple picture");
+        assert_eq!(depth, 0.03);
+        let (got, snaps) = snap_planar_to_wall(&b, &picture, &layer, Some(&room), [3.0, 2.0, 1.5], depth, &gp);
+        assert!(snaps.len() == 1 && snaps[0].room_wall, "{snaps:?}");
+        let w = wall_x(2.85);
+        assert!((got.min[0] - (w - 0.03)).abs() < 1e-3 && (got.max[0] - w).abs() < 1e-3, "{got:?}");
+        // The same points measured (scattered by noise) are a front plane: the layer behind
+        // is their wall.
+        let measured: Vec<Point3<f64>> = picture.iter().enumerate().map(|(i, p)| Point3::new(p.x + 0.01 * jitter(i, 5), p.y, p.z)).collect();
+        let (got, snaps) = snap_planar_to_wall(&b, &measured, &layer, Some(&room), [3.0, 2.0, 1.5], depth, &gp);
+        assert!(!snaps[0].room_wall && (got.max[0] - (w + 0.025)).abs() < 0.008, "{got:?} {snaps:?}");
+        // Classes without an entry get the default depth.
+        assert_eq!(gp.layout.flat_depth_for("door"), gp.layout.flat_depth);
+        assert_eq!(gp.layout.flat_depth_for("pictures"), 0.03);
     }
 
     #[test]
@@ -229,11 +279,11 @@ mod tests {
             cabinet.extend(plane_y(5.6 + 0.02 * k as f64, (0.7, 1.9), (0.9, 0.9), 0.0, None));
         }
         let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
-        assert_eq!(snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], &gp), (b, vec![]), "not a plane");
+        assert_eq!(snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp), (b, vec![]), "not a plane");
         // A screen standing 40 cm in front of the wall: the wall is too far to be its back.
         let screen = plane_y(5.7, (0.7, 1.9), (0.2, 0.9), 0.02, None);
         let b = Aabb::new([0.7, 5.66, 0.2], [1.9, 5.74, 0.9]);
-        let (same, snaps) = snap_planar_to_wall(&b, &screen, &wall, None, [1.3, 3.0, 1.5], &gp);
+        let (same, snaps) = snap_planar_to_wall(&b, &screen, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp);
         assert_eq!(same, b);
         assert!(snaps.len() == 1 && !snaps[0].applied(), "a plane, but no wall within reach: {snaps:?}");
         // A chair seen from behind: its back is a plane, its seat lies behind it, but only
@@ -245,16 +295,16 @@ mod tests {
             seat.extend(plane_y(2.02 + 0.01 * k as f64, (0.95, 1.5), (0.43, 0.43), 0.0, None));
         }
         let b = Aabb::new([1.0, 1.98, 0.0], [1.45, 2.45, 0.95]);
-        let (same, snaps) = snap_planar_to_wall(&b, &back, &seat, None, [1.2, 0.5, 1.2], &gp);
+        let (same, snaps) = snap_planar_to_wall(&b, &back, &seat, None, [1.2, 0.5, 1.2], 0.05, &gp);
         assert_eq!(same, b, "{snaps:?}");
         // Seen from behind the wall (camera at y > 6.11), the wall is on the camera's side.
         let window = plane_y(6.05, (0.7, 1.9), (0.0, 1.0), 0.02, None);
         let b = Aabb::new([0.7, 6.0, 0.0], [1.9, 6.1, 1.0]);
-        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 8.0, 1.5], &gp).0, b);
+        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 8.0, 1.5], 0.05, &gp).0, b);
         // Off switches.
         let mut off = gp.clone();
         off.support.planar_iqr = 0.0;
-        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], &off).1, vec![]);
-        assert!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], &gp).1[0].applied());
+        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &off).1, vec![]);
+        assert!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp).1[0].applied());
     }
 }

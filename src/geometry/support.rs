@@ -109,7 +109,7 @@ impl SupportParams {
 }
 
 /// Is `class` in `list`, whole or by its last word, singular or plural?
-fn class_in(list: &[String], class: &str) -> bool {
+pub(crate) fn class_in(list: &[String], class: &str) -> bool {
     let c = class.trim().to_lowercase();
     let last = c.split_whitespace().last().unwrap_or("");
     list.iter().any(|h| {

@@ -108,6 +108,24 @@ fn rays_nothing_measured_end_on_the_room_only_beyond_range() {
         let (got, want) = (f64::from(filled.get(x, y)), f64::from(truth.get(x, y)));
         assert!((got - want).abs() < 60.0, "({x}, {y}): {got} mm, the wall is at {want} mm");
     }
+    // Coarse cells (4 rays for the region) on a wall seen at a slant: every pixel still
+    // gets its own exit, so the filled depth follows the wall, not one depth per cell.
+    let slanted = camera([3.0, 2.5, 1.5], [12.0, 0.8, 1.5]);
+    let sd = render(&slanted, &room, 5.0);
+    let coarse = GeometryParams { depth_fill: DepthFillParams { max_rays: 4, ..DepthFillParams::default() }, ..GeometryParams::default() };
+    let (filled, stats) = fill_depth(&slanted, &sd, region, &[], Some(&layout), &coarse).unwrap();
+    assert!(stats.cell >= 5 && stats.placed > 0, "{stats:?}");
+    let truth = render(&slanted, &room, 100.0);
+    let (x0, y0) = (15u32, 10u32);
+    assert!(f64::from(truth.get(x0, y0)) - f64::from(truth.get(x0 + 10, y0)) > 150.0, "the wall is slanted in view");
+    for y in 10..21 {
+        for x in 15..26 {
+            if sd.get(x, y) == 0 && filled.get(x, y) > 0 {
+                let (got, want) = (f64::from(filled.get(x, y)), f64::from(truth.get(x, y)));
+                assert!((got - want).abs() < 60.0, "({x}, {y}): {got} mm, the wall is at {want} mm");
+            }
+        }
+    }
     // A region mostly read (a wall 3 m away fills its left part) is an object that was
     // measured: its empty part is not put on the wall behind.
     let mut half = depth.clone();
