@@ -134,7 +134,7 @@ fn oracle_pipeline_grounds_synthetic_scenes_over_http() {
         &["serve", "--addr", "127.0.0.1:0", "--data-dir", &data],
         &[
             ("GROUNDER_DETECTOR", "oracle".into()),
-            ("GROUNDER_SEGMENTER", "depth".into()),
+            ("GROUNDER_SEGMENTER", std::env::var("E2E_SEGMENTER").unwrap_or_else(|_| "depth".into())),
             ("GROUNDER_VLM_BASE_URL", format!("{oracle_url}/v1")),
             ("GROUNDER_VLM_MODEL", "oracle".into()),
             ("GROUNDER_VLM_API_KEY", "x".into()),
@@ -191,9 +191,10 @@ fn oracle_pipeline_grounds_synthetic_scenes_over_http() {
         .filter(|l| !l.contains("\"failure_stage\":null"))
         .take(10)
         .collect();
-    // Issue 8's bar for these scenes is Acc@0.25 >= 0.9. Measured: 0.99 / 0.88
-    // (Acc@0.25 / Acc@0.5, measured 2026-11-23; docs/benchmark-e2e.md has the
-    // realistic-noise figures).
+    // Issue 8's bar for these scenes is Acc@0.25 >= 0.9. Measured: 0.985 / 0.897
+    // (Acc@0.25 / Acc@0.5, measured 2026-11-24; docs/benchmark-e2e.md has the
+    // realistic-noise figures). E2E_SEGMENTER picks another segmenter spec for a
+    // comparison (e.g. depth:colour=off); the bar applies to the default.
     println!("e2e: Acc@0.25 {acc25:.3}, Acc@0.5 {acc05:.3} over {n_queries} queries");
     const FLOOR_025: f64 = 0.9;
     const FLOOR_05: f64 = 0.75;

@@ -19,6 +19,29 @@ impl DepthSegmenter {
         ((r[2] - r[0]) * (r[3] - r[1])) as f64 / ((bx1 - bx0) * (by1 - by0)).max(1) as f64
     }
 
+    /// Is what colour took away from the depth-grown `region` (cells of `region` not in
+    /// `coloured`) mostly a neighbour running in from outside the box? At least half of
+    /// the removed in-box cells must connect, through removed cells, to removed cells
+    /// outside the box. A face of the object itself shaded differently lies inside the box
+    /// and is not a leak.
+    pub(super) fn colour_drops_a_leak(g: &Grid, region: &[bool], coloured: &[bool]) -> bool {
+        let removed = |i: usize| region[i] && !coloured[i];
+        let mut seen = vec![false; region.len()];
+        let mut queue: std::collections::VecDeque<usize> = (0..region.len()).filter(|&i| removed(i) && !g.inb[i]).collect();
+        queue.iter().for_each(|&i| seen[i] = true);
+        while let Some(i) = queue.pop_front() {
+            for j in g.neighbours(i).into_iter().flatten() {
+                if !seen[j] && removed(j) {
+                    seen[j] = true;
+                    queue.push_back(j);
+                }
+            }
+        }
+        let inside: Vec<usize> = (0..region.len()).filter(|&i| removed(i) && g.inb[i]).collect();
+        let reached = inside.iter().filter(|&&i| seen[i]).count();
+        2 * reached >= inside.len()
+    }
+
     /// Keep the largest 4-connected component of `region`.
     pub(super) fn largest_component(g: &Grid, region: &[bool]) -> Vec<bool> {
         let mut label = vec![0u32; region.len()];

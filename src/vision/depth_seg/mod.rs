@@ -4,7 +4,9 @@
 //! modes. (2) For each strong mode from near to far, seeds at that depth in the central part
 //! of the box grow over 4-neighbours (also a little beyond the box) while the depth step
 //! stays under a noise- and distance-dependent limit; when that surface runs past the box
-//! (an object against a wall), it is grown again with the seeds' colour as a second limit.
+//! (an object against a wall), it is grown again with the seeds' colour as a second limit,
+//! and when it runs past the box at all, that coloured version is scored beside it in (4)
+//! (two touching objects at one depth, told apart by colour).
 //! (3) Where the growth leaked onto the supporting surface (floor, table top), the points
 //! within a few cm of the lowest height (gravity = the output frame's +z) are cut and the
 //! growth is redone. (4) Among the surfaces that stay mostly inside the box, the one whose
@@ -50,6 +52,9 @@ pub struct DepthSegmenter {
     /// realistic 1296x968 scenes 81.3/61.3 -> 82.0/68.0 Acc@0.25/0.5, small noise-free
     /// 320x240 scenes 0.99/0.88 -> 0.93/0.82 (one chair loses its seat in one view).
     pub block_edges: bool,
+    /// Score each depth-grown surface that runs past the box beside its colour-limited
+    /// version and keep the better (spec `depth:colour=off` turns it off).
+    pub colour_alternative: bool,
 }
 
 impl Default for DepthSegmenter {
@@ -65,6 +70,7 @@ impl Default for DepthSegmenter {
             max_cells: 200_000,
             colour_tol: 60.0,
             block_edges: false,
+            colour_alternative: true,
         }
     }
 }
@@ -77,7 +83,9 @@ impl DepthSegmenter {
             match part.split_once('=').map(|(k, v)| (k.trim(), v.trim())) {
                 Some(("edges", "on")) => d.block_edges = true,
                 Some(("edges", "off")) => d.block_edges = false,
-                _ => bail!("unknown depth segmenter option `{part}` (expected edges=on or edges=off)"),
+                Some(("colour", "on")) => d.colour_alternative = true,
+                Some(("colour", "off")) => d.colour_alternative = false,
+                _ => bail!("unknown depth segmenter option `{part}` (expected edges=on|off or colour=on|off)"),
             }
         }
         Ok(d)
@@ -115,6 +123,34 @@ impl Grid {
             (y + 1 < self.h).then(|| i + self.w),
         ]
     }
+}
+
+/// How colour limits the growth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Colour {
+    /// Depth alone.
+    Off,
+    /// Within `colour_tol` (sum of absolute RGB differences) of the seeds' median.
+    Rgb,
+    /// Of the seeds' hue whatever the shading ([`same_hue`]).
+    Hue,
+}
+
+/// Same surface colour under different light: the chromaticities (each channel's share
+/// of the sum) differ by at most `tol / 765` in sum, and the brightness by at most a
+/// factor of 4 (a face turned from the light). Near-black colours (sum under 45) carry no
+/// reliable hue: they match each other.
+fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
+    let (sm, sc) = (mid.iter().sum::<f64>(), c.iter().map(|&v| f64::from(v)).sum::<f64>());
+    const DARK: f64 = 45.0;
+    if sm < DARK || sc < DARK {
+        return sm < DARK && sc < DARK;
+    }
+    if sc > 4.0 * sm || sm > 4.0 * sc {
+        return false;
+    }
+    let d: f64 = mid.iter().zip(c).map(|(m, &v)| (m / sm - f64::from(v) / sc).abs()).sum();
+    d <= tol / 765.0 * 3.0
 }
 
 impl DepthSegmenter {
@@ -278,7 +314,8 @@ impl DepthSegmenter {
 
     /// Grow from seeds at the target depth (central part of the box first).
     /// With `colour`, only cells within `colour_tol` of the seeds' median colour join.
-    fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool], colour: bool) -> Vec<bool> {
+    fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool], rule: Colour) -> Vec<bool> {
+        let colour = rule != Colour::Off;
         let tol = 0.05 + 0.03 * target;
         let near =
             |i: usize| g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i] && !g.edge[i];
@@ -308,7 +345,11 @@ impl DepthSegmenter {
                 }
             }
         }
-        let like = |i: usize| !colour || mid.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= self.colour_tol;
+        let like = |i: usize| match rule {
+            Colour::Off => true,
+            Colour::Rgb => mid.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= self.colour_tol,
+            Colour::Hue => same_hue(&mid, &g.rgb[i], self.colour_tol),
+        };
         if colour {
             seeds.retain(|&i| like(i));
         }
@@ -360,12 +401,12 @@ impl DepthSegmenter {
 
     /// Region for one mode, with the support removed; and its fraction outside the box.
     fn surface(&self, g: &Grid, target: f64, cell_px: f64) -> (Vec<bool>, f64) {
-        let (region, outside) = self.surface_with(g, target, cell_px, false);
+        let (region, outside) = self.surface_with(g, target, cell_px, Colour::Off);
         if outside <= self.max_outside {
             return (region, outside);
         }
         // Leaked past the box on depth alone: try again with colour as a second limit.
-        let (coloured, out_c) = self.surface_with(g, target, cell_px, true);
+        let (coloured, out_c) = self.surface_with(g, target, cell_px, Colour::Rgb);
         if out_c <= self.max_outside {
             (coloured, out_c)
         } else {
@@ -373,7 +414,7 @@ impl DepthSegmenter {
         }
     }
 
-    fn surface_with(&self, g: &Grid, target: f64, cell_px: f64, colour: bool) -> (Vec<bool>, f64) {
+    fn surface_with(&self, g: &Grid, target: f64, cell_px: f64, colour: Colour) -> (Vec<bool>, f64) {
         let none = vec![false; g.z.len()];
         let mut region = self.grow(g, target, cell_px, &none, colour);
         if let Some(cut) = self.support_cut(g, &region) {
@@ -436,13 +477,27 @@ impl Segmenter for DepthSegmenter {
         // Each strong mode's surface is scored by how well it explains a tight box: its
         // extent inside the box should fill the box (an occluder covering part of it does
         // not) and it should stop at the box edges (a wall behind runs on past them).
+        // With `colour_alternative`, each surface grown on depth alone that runs past the box
+        // at all is scored beside the same surface grown with the seeds' colour too, when
+        // what colour removes is mostly a neighbour running in from outside the box: two
+        // touching objects at one depth (pillows side by side) are one surface to depth, and
+        // the coloured one then stops at the box as tightly while running past it less.
         let mut best: Option<(f64, Vec<bool>)> = None;
+        let score = |region: &[bool], outside: f64| Self::extent_fill(&g, region) * (1.0 - outside) * if outside <= self.max_outside { 1.0 } else { 0.5 };
         for &m in modes.iter().take(4) {
             let (region, outside) = self.surface(&g, m, cell_px);
-            let fill = Self::extent_fill(&g, &region);
-            let score = fill * (1.0 - outside) * if outside <= self.max_outside { 1.0 } else { 0.5 };
-            if best.as_ref().is_none_or(|(s, _)| score > *s + 1e-9) {
-                best = Some((score, region));
+            let mut cands = Vec::with_capacity(2);
+            if self.colour_alternative && outside > 0.0 {
+                let (coloured, out_c) = self.surface_with(&g, m, cell_px, Colour::Hue);
+                if Self::colour_drops_a_leak(&g, &region, &coloured) {
+                    cands.push((score(&coloured, out_c), coloured));
+                }
+            }
+            cands.insert(0, (score(&region, outside), region));
+            for (sc, region) in cands {
+                if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
+                    best = Some((sc, region));
+                }
             }
         }
         let Some((_, region)) = best else {

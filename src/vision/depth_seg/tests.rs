@@ -46,7 +46,7 @@ fn the_surface_that_fills_the_box_wins_over_a_nearer_occluder() {
     let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
     assert!(m.iou(&bin) > 0.8, "bed in front: IoU {}", m.iou(&bin));
     // On depth alone the bin runs onto the wall and past the box, and the bed wins.
-    let depth_only = DepthSegmenter { colour_tol: f64::INFINITY, ..DepthSegmenter::default() };
+    let depth_only = DepthSegmenter { colour_tol: f64::INFINITY, colour_alternative: false, ..DepthSegmenter::default() };
     let m = depth_only.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
     assert!(m.iou(&bin) < 0.2, "depth only: IoU {}", m.iou(&bin));
 }
@@ -105,4 +105,55 @@ fn a_slanted_surface_is_not_taken_for_an_edge() {
     assert!(m.iou(&plate) > 0.75, "IoU {}", m.iou(&plate));
     assert!(DepthSegmenter::from_spec("edges=maybe").is_err());
     assert!(!DepthSegmenter::from_spec("").unwrap().block_edges);
+}
+
+#[test]
+fn touching_objects_at_one_depth_are_told_apart_by_colour() {
+    // Two pillows at 2.0 m in front of a wall at 3.1 m: the green one spans
+    // [20, 40) x [30, 50); the pink one, beside it at the same depth, covers the green one's
+    // top-right corner [30, 40) x [30, 40) in the image and runs on to x = 50. The green
+    // one's tight box is [20, 40) x [30, 50), a quarter of it pink.
+    let mut color = RgbImage::from_pixel(S, S, Rgb([150, 150, 150]));
+    let mut depth = vec![3100u16; (S * S) as usize];
+    let mut green = Mask::new(S, S);
+    for y in 30..50 {
+        for x in 20..50 {
+            let pink = x >= 30 && y < 40;
+            if !pink && x >= 40 {
+                continue;
+            }
+            depth[(y * S + x) as usize] = 2000;
+            if pink {
+                color.put_pixel(x, y, Rgb([230, 120, 150]));
+            } else {
+                green.set(x, y, true);
+                color.put_pixel(x, y, Rgb([40, 150, 50]));
+            }
+        }
+    }
+    let cam = camera(80.0, look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z()));
+    let depth = DepthMap::new(S, S, depth);
+    let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+    let bbox = [20.0, 30.0, 40.0, 50.0];
+    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
+    assert!(m.iou(&green) > 0.9, "with colour: IoU {}", m.iou(&green));
+    // On depth alone both pillows are one surface (running past the box by less than
+    // `max_outside`, so no regrowth is forced) and the pink corner stays in.
+    let m = DepthSegmenter::from_spec("colour=off").unwrap().segment(&input, bbox).unwrap();
+    assert!(m.iou(&green) < 0.8, "depth alone: IoU {}", m.iou(&green));
+    assert!(DepthSegmenter::from_spec("colour=maybe").is_err());
+}
+
+#[test]
+fn hue_survives_shading_but_not_another_colour() {
+    let white = [200.0, 198.0, 192.0];
+    // The same white face turned from the light, and a pink pillow.
+    assert!(same_hue(&white, &[90, 89, 86], 60.0));
+    assert!(!same_hue(&white, &[230, 120, 150], 60.0));
+    // Green against pink; white against black (a factor over 4 in brightness).
+    assert!(!same_hue(&[40.0, 150.0, 50.0], &[230, 120, 150], 60.0));
+    assert!(!same_hue(&white, &[20, 20, 20], 60.0));
+    // Near-black colours match each other only.
+    assert!(same_hue(&[8.0, 8.0, 9.0], &[12, 10, 9], 60.0));
+    assert!(!same_hue(&[8.0, 8.0, 9.0], &[120, 10, 9], 60.0));
 }
