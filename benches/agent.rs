@@ -4,7 +4,7 @@
 //! `ms` of each job's trace. Target: non-VLM time ≤ 0.3 s per query on 2 cores.
 //!
 //! `cargo bench --bench agent` (AGENT_BENCH_QUERIES=N, default 12; AGENT_BENCH_FULL=1 adds
-//! a 1296x968 run).
+//! a 1296x968 run; AGENT_BENCH_SEGMENTER=SPEC another segmenter, default `depth`).
 
 #[allow(dead_code)]
 #[path = "../tests/api/fake_vlm.rs"]
@@ -47,7 +47,7 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
     let mut cfg = helpers::test_config(dir.path().join("data"));
     cfg.pipeline = "vlm".into();
     cfg.detector = "oracle".into();
-    cfg.segmenter = "depth".into();
+    cfg.segmenter = std::env::var("AGENT_BENCH_SEGMENTER").unwrap_or_else(|_| "depth".into());
     cfg.workers = 1;
     cfg.vlm = Some(VlmConfig { base_url: vlm.base.clone(), api_key: ApiKey::new("bench"), timeout_ms: 30_000, ..VlmConfig::default() });
     let app = helpers::TestApp::spawn_with(cfg).await;
