@@ -204,21 +204,23 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     let (seg, params, sc, vb, room) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone(), layout);
     let anchor_idx = choice.frame_idx;
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
-    let (fusion, single, support, votes, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
+    let (fusion, single, support, votes, fills, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
         let ts = Instant::now();
-        let clouds: Vec<(usize, ViewCloud)> = vb
+        let segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
             .par_iter()
             .filter_map(|(i, b, _)| {
                 let img: &Arc<RgbImage> = decoded.get(i)?;
-                let frame = match &view_room {
-                    Some(room) => complete_depth(sc.frames[*i].clone(), *b, &[], Some(room), &params).0,
-                    None => sc.frames[*i].clone(),
+                let (frame, fill) = match &view_room {
+                    Some(room) => complete_depth(sc.frames[*i].clone(), *b, &[], Some(room), &params),
+                    None => (sc.frames[*i].clone(), serde_json::Value::Null),
                 };
-                segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls).ok().map(|c| (*i, c))
+                segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls).ok().map(|c| (*i, c, fill))
             })
-            .filter(|(_, c)| !c.points.is_empty())
             .collect();
+        // What depth completion did in each view (null when it was not asked to).
+        let fills: HashMap<usize, serde_json::Value> = segmented.iter().map(|(i, _, f)| (*i, f.clone())).collect();
+        let clouds: Vec<(usize, ViewCloud)> = segmented.into_iter().map(|(i, c, _)| (i, c)).filter(|(_, c)| !c.points.is_empty()).collect();
         let mut other_pts = Vec::with_capacity(clouds.len());
         let (mut masks, mut contexts) = (Vec::with_capacity(clouds.len()), Vec::with_capacity(clouds.len()));
         for (i, c) in clouds {
@@ -273,7 +275,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
             (b, moved, planar)
         });
         let support_ms = ms(tsup);
-        (fusion, single_view_box(&anchor_pts, &params), support, votes, [segment_ms, fuse_ms, support_ms])
+        (fusion, single_view_box(&anchor_pts, &params), support, votes, fills, [segment_ms, fuse_ms, support_ms])
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
@@ -285,7 +287,7 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
         .map(|(v, (_, b, from_det))| {
             let d = fusion.views.iter().find(|d| d.index == v.index);
             json!({"image_id": format!("{:05}", v.index), "visible_fraction": v.visible_fraction, "footprint": v.bbox, "box": b, "box_from_detection": from_det,
-                   "chamfer": d.and_then(|d| d.chamfer), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points)})
+                   "chamfer": d.and_then(|d| d.chamfer), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points), "depth_fill": fills.get(&v.index).cloned().unwrap_or_default()})
         })
         .collect();
     step(
