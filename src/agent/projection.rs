@@ -121,15 +121,15 @@ fn complete_anchor_depth(scene: &crate::scene::SceneData, anchor: FrameData, bbo
 
 /// `frame` with the empty depth pixels inside `bbox` completed from `others` and `layout`
 /// (see [`complete_anchor_depth`]).
-fn complete_depth(mut anchor: FrameData, bbox: [f32; 4], others: &[(&crate::geometry::FrameCamera, &crate::geometry::DepthMap)], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
-    match fill_depth(&anchor.camera, &anchor.depth, bbox, others, layout, params) {
+fn complete_depth(mut frame: FrameData, bbox: [f32; 4], others: &[(&crate::geometry::FrameCamera, &crate::geometry::DepthMap)], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
+    match fill_depth(&frame.camera, &frame.depth, bbox, others, layout, params) {
         Ok((depth, stats)) => {
             if stats.filled > 0 {
-                anchor.depth = Arc::new(depth);
+                frame.depth = Arc::new(depth);
             }
-            (anchor, json!(stats))
+            (frame, json!(stats))
         }
-        Err(e) => (anchor, json!({"error": e.to_string()})),
+        Err(e) => (frame, json!({"error": e.to_string()})),
     }
 }
 

@@ -81,8 +81,7 @@ pub fn find_views_with_room(
             let (w, h) = (c.camera.color.width, c.camera.color.height);
             let cam_to_out = c.camera.cam_to_out();
             let on_room = |q: &Projected| {
-                let inside = q.u >= -0.5 && q.v >= -0.5 && q.u < w as f64 - 0.5 && q.v < h as f64 - 0.5;
-                let Some(room) = room.filter(|_| inside && q.measured.is_none()) else { return false };
+                let Some(room) = room.filter(|_| q.inside && q.measured.is_none()) else { return false };
                 room.exit_depth(c.camera, &cam_to_out, q.u, q.v)
                     .is_some_and(|e| room.beyond_range(e, &params.layout) && (e - q.z).abs() <= params.visibility_tolerance(q.z))
             };

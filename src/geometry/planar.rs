@@ -149,9 +149,16 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
         // moves by millimetres along the object.)
         let placed_on = || {
             let room = room?;
-            let n = room.walls_on_axis(a, &centre).len();
-            let on = |k: usize| anchor.iter().filter(|q| room.walls_on_axis(a, q).get(k).is_some_and(|w| (q[a] - w).abs() <= ON_ROOM_WALL)).count();
-            (0..n).find(|&k| 2 * on(k) >= anchor.len()).and_then(|k| room.walls_on_axis(a, &centre).get(k).copied())
+            let at_centre = room.walls_on_axis(a, &centre);
+            let mut on = vec![0usize; at_centre.len()];
+            for q in anchor {
+                for (k, w) in room.walls_on_axis(a, q).iter().enumerate() {
+                    if (q[a] - w).abs() <= ON_ROOM_WALL {
+                        on[k] += 1;
+                    }
+                }
+            }
+            on.iter().position(|&n| 2 * n >= anchor.len()).map(|k| at_centre[k])
         };
         let (wall, room_wall, on_wall) = match placed_on() {
             Some(w) => (Some(w), true, true),

@@ -169,6 +169,8 @@ pub struct Projected {
     pub v: f64,
     /// Depth of the point in that camera (m).
     pub z: f64,
+    /// Inside the image.
+    pub inside: bool,
     /// Depth measured there (m), if any.
     pub measured: Option<f64>,
     /// Inside the image, in front of the camera and consistent with the measured depth.
@@ -200,7 +202,7 @@ pub(crate) fn project_one(p: &Point3<f64>, to_cam: &Matrix4<f64>, cam: &FrameCam
     let inside = u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5;
     let measured = if inside { cam.depth_at_color(depth, u.round().max(0.0), v.round().max(0.0)) } else { None };
     let visible = measured.is_some_and(|d| (d - z).abs() <= params.visibility_tolerance(z));
-    Some(Projected { u, v, z, measured, visible })
+    Some(Projected { u, v, z, inside, measured, visible })
 }
 
 #[cfg(test)]
