@@ -20,11 +20,27 @@ use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-const STAGES: [&str; 9] = ["query_analysis", "preselection", "stitching", "image_selection", "detection", "instance_selection", "segmentation", "projection", "summary"];
+const STAGES: [&str; 9] = [
+    "query_analysis",
+    "preselection",
+    "stitching",
+    "image_selection",
+    "detection",
+    "instance_selection",
+    "segmentation",
+    "projection",
+    "summary",
+];
 
 fn main() -> anyhow::Result<()> {
-    let n: usize = std::env::var("AGENT_BENCH_QUERIES").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
-    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    let n: usize = std::env::var("AGENT_BENCH_QUERIES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(12);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
     rt.block_on(run(n, (640, 480)))?;
     if std::env::var("AGENT_BENCH_FULL").is_ok_and(|v| v == "1") {
         rt.block_on(run(n, (1296, 968)))?;
@@ -35,13 +51,23 @@ fn main() -> anyhow::Result<()> {
 async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
     let t = Instant::now();
-    let params = SynthParams { frames: 100, color_size: color, depth_size: (640, 480), ..SynthParams::new(11) };
+    let params = SynthParams {
+        frames: 100,
+        color_size: color,
+        depth_size: (640, 480),
+        ..SynthParams::new(11)
+    };
     let scene = tokio::task::spawn_blocking({
         let out = dir.path().join("synth");
         move || generate_with(&params, &out, true)
     })
     .await??;
-    eprintln!("scene {}x{} x100 generated in {:.1} s", color.0, color.1, t.elapsed().as_secs_f64());
+    eprintln!(
+        "scene {}x{} x100 generated in {:.1} s",
+        color.0,
+        color.1,
+        t.elapsed().as_secs_f64()
+    );
 
     let vlm = FakeVlm::start(vec![]).await;
     let mut cfg = helpers::test_config(dir.path().join("data"));
@@ -49,19 +75,30 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
     cfg.detector = "oracle".into();
     cfg.segmenter = std::env::var("AGENT_BENCH_SEGMENTER").unwrap_or_else(|_| "depth".into());
     cfg.workers = 1;
-    cfg.vlm = Some(VlmConfig { base_url: vlm.base.clone(), api_key: ApiKey::new("bench"), timeout_ms: 30_000, ..VlmConfig::default() });
+    cfg.vlm = Some(VlmConfig {
+        base_url: vlm.base.clone(),
+        api_key: ApiKey::new("bench"),
+        timeout_ms: 30_000,
+        ..VlmConfig::default()
+    });
     let app = helpers::TestApp::spawn_with(cfg).await;
     let tar = scene.tar.clone().ok_or_else(|| anyhow::anyhow!("no tar"))?;
     let r = app.upload(std::fs::read(tar)?, "application/x-tar").await;
     anyhow::ensure!(r.status().as_u16() == 201, "upload failed: {}", r.status());
-    let sid = r.json::<Value>().await?["id"].as_str().unwrap_or_default().to_string();
+    let sid = r.json::<Value>().await?["id"]
+        .as_str()
+        .unwrap_or_default()
+        .to_string();
     let t = Instant::now();
     loop {
         let (_, s) = app.get_json(&format!("/v1/scenes/{sid}")).await;
         if s["status"] == "ready" {
             break;
         }
-        anyhow::ensure!(t.elapsed() < Duration::from_secs(600), "scene not ready: {s}");
+        anyhow::ensure!(
+            t.elapsed() < Duration::from_secs(600),
+            "scene not ready: {s}"
+        );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     eprintln!("indexed (oracle) in {:.1} s", t.elapsed().as_secs_f64());
@@ -77,19 +114,36 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
         let class = q.target_label.as_str();
         // The "VLM" picks the frame where the class's largest box is.
         let area = |b: &[f32; 4]| (b[2] - b[0]) * (b[3] - b[1]);
-        let best = dets.iter().flat_map(|(i, d)| d.iter().filter(|d| d.label == class).map(move |d| (*i, area(&d.bbox)))).max_by(|a, b| a.1.total_cmp(&b.1));
+        let best = dets
+            .iter()
+            .flat_map(|(i, d)| {
+                d.iter()
+                    .filter(|d| d.label == class)
+                    .map(move |d| (*i, area(&d.bbox)))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
         let Some((frame, _)) = best else { continue };
         let many = dets[&frame].iter().filter(|d| d.label == class).count() > 1;
         let mut replies = vec![
-            Reply::ok(json!({"target_class": class, "attributes": [], "conditions": []}).to_string()),
-            Reply::ok(json!({"reasoning": "", "target_image_id": frame, "reference_image_ids": []}).to_string()),
+            Reply::ok(
+                json!({"target_class": class, "attributes": [], "conditions": []}).to_string(),
+            ),
+            Reply::ok(
+                json!({"reasoning": "", "target_image_id": frame, "reference_image_ids": []})
+                    .to_string(),
+            ),
         ];
         if many {
-            replies.push(Reply::ok(json!({"reasoning": "", "object_id": 0}).to_string()));
+            replies.push(Reply::ok(
+                json!({"reasoning": "", "object_id": 0}).to_string(),
+            ));
         }
         vlm.script_push(replies);
         let r = app.create_job(&sid, &format!("{} (run {k})", q.text)).await;
-        let id = r.json::<Value>().await?["id"].as_str().unwrap_or_default().to_string();
+        let id = r.json::<Value>().await?["id"]
+            .as_str()
+            .unwrap_or_default()
+            .to_string();
         let job = app.wait_job(&id, Duration::from_secs(120)).await;
         if job["status"] != "succeeded" {
             failed += 1;
@@ -102,23 +156,53 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
         for s in job["trace"].as_array().into_iter().flatten() {
             let name = s["step"].as_str().unwrap_or("");
             if let Some(st) = STAGES.iter().find(|x| **x == name) {
-                per_stage.entry(st).or_default().push(s["ms"].as_f64().unwrap_or(0.0));
+                per_stage
+                    .entry(st)
+                    .or_default()
+                    .push(s["ms"].as_f64().unwrap_or(0.0));
             }
             if name == "summary" {
                 non_vlm.push(s["outputs"]["non_vlm_ms"].as_f64().unwrap_or(f64::NAN));
             }
             if name == "stitching" {
-                extra.entry("stitching.decode").or_default().push(s["outputs"]["decode_ms"].as_f64().unwrap_or(0.0));
-                extra.entry("stitching.render").or_default().push(s["outputs"]["render_ms"].as_f64().unwrap_or(0.0));
-                extra.entry("stitching.frames").or_default().push(s["inputs"]["frames"].as_f64().unwrap_or(0.0));
-                extra.entry("stitching.from_previews").or_default().push(s["outputs"]["from_previews"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("stitching.decode")
+                    .or_default()
+                    .push(s["outputs"]["decode_ms"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("stitching.render")
+                    .or_default()
+                    .push(s["outputs"]["render_ms"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("stitching.frames")
+                    .or_default()
+                    .push(s["inputs"]["frames"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("stitching.from_previews")
+                    .or_default()
+                    .push(s["outputs"]["from_previews"].as_f64().unwrap_or(0.0));
             }
             if name == "projection" {
-                for (key, part) in [("projection.find_views", "find_views"), ("projection.decode", "decode"), ("projection.segment", "segment"), ("projection.fuse", "fuse"), ("projection.support", "support")] {
-                    extra.entry(key).or_default().push(s["outputs"]["timings_ms"][part].as_f64().unwrap_or(0.0));
+                for (key, part) in [
+                    ("projection.find_views", "find_views"),
+                    ("projection.decode", "decode"),
+                    ("projection.segment", "segment"),
+                    ("projection.fuse", "fuse"),
+                    ("projection.support", "support"),
+                ] {
+                    extra
+                        .entry(key)
+                        .or_default()
+                        .push(s["outputs"]["timings_ms"][part].as_f64().unwrap_or(0.0));
                 }
-                extra.entry("projection.views_decoded").or_default().push(s["outputs"]["views_decoded"].as_f64().unwrap_or(0.0));
-                extra.entry("projection.candidate_views").or_default().push(s["inputs"]["candidate_views"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("projection.views_decoded")
+                    .or_default()
+                    .push(s["outputs"]["views_decoded"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("projection.candidate_views")
+                    .or_default()
+                    .push(s["inputs"]["candidate_views"].as_f64().unwrap_or(0.0));
             }
         }
     }

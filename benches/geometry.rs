@@ -10,18 +10,29 @@ mod geometry_scene;
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use grounder::geometry::camera::look_at_pose;
 use grounder::geometry::{
-    find_views, fuse_views, mask_points, remove_statistical_outliers, CandidateFrame, DepthMap, FrameCamera,
-    GeometryParams, Intrinsics, Mask,
+    find_views, fuse_views, mask_points, remove_statistical_outliers, CandidateFrame, DepthMap,
+    FrameCamera, GeometryParams, Intrinsics, Mask,
 };
 use nalgebra::{Matrix4, Point3, Vector3};
 
 fn mask_frame() -> (Mask, FrameCamera, DepthMap) {
-    let color = Intrinsics { fx: 1170.0, fy: 1170.0, cx: 647.5, cy: 483.5, width: 1296, height: 968 };
+    let color = Intrinsics {
+        fx: 1170.0,
+        fy: 1170.0,
+        cx: 647.5,
+        cy: 483.5,
+        width: 1296,
+        height: 968,
+    };
     let cam = FrameCamera {
         color,
         depth: None,
         depth_size: (640, 480),
-        pose: look_at_pose(Point3::new(0.0, -2.0, 1.5), Point3::new(0.0, 0.0, 0.5), Vector3::z()),
+        pose: look_at_pose(
+            Point3::new(0.0, -2.0, 1.5),
+            Point3::new(0.0, 0.0, 0.5),
+            Vector3::z(),
+        ),
         align: Matrix4::identity(),
     };
     // A slanted, slightly bumpy surface with a few holes.
@@ -53,13 +64,25 @@ fn bench_mask(c: &mut Criterion) {
     let (mask, cam, depth) = mask_frame();
     let p = GeometryParams::default();
     let pts = mask_points(&mask, &cam, &depth, &p).unwrap_or_default();
-    println!("mask pixels {}, points after post-processing + back-projection {}", mask.count(), pts.len());
+    println!(
+        "mask pixels {}, points after post-processing + back-projection {}",
+        mask.count(),
+        pts.len()
+    );
     let eroded = grounder::geometry::postprocess_mask(&mask, p.erode_kernel, p.keep_components);
     c.bench_function("part_postprocess", |b| {
-        b.iter(|| grounder::geometry::postprocess_mask(black_box(&mask), p.erode_kernel, p.keep_components))
+        b.iter(|| {
+            grounder::geometry::postprocess_mask(
+                black_box(&mask),
+                p.erode_kernel,
+                p.keep_components,
+            )
+        })
     });
     c.bench_function("part_backproject", |b| {
-        b.iter(|| grounder::geometry::backproject_mask(black_box(&eroded), &cam, &depth, (&p).into()))
+        b.iter(|| {
+            grounder::geometry::backproject_mask(black_box(&eroded), &cam, &depth, (&p).into())
+        })
     });
     c.bench_function("part_sor", |b| {
         b.iter(|| remove_statistical_outliers(black_box(&pts), p.sor_neighbors, p.sor_std_ratio))
@@ -67,7 +90,11 @@ fn bench_mask(c: &mut Criterion) {
     c.bench_function("mask_100k", |b| {
         b.iter(|| {
             let pts = mask_points(black_box(&mask), &cam, &depth, &p).unwrap_or_default();
-            black_box(remove_statistical_outliers(&pts, p.sor_neighbors, p.sor_std_ratio))
+            black_box(remove_statistical_outliers(
+                &pts,
+                p.sor_neighbors,
+                p.sor_std_ratio,
+            ))
         })
     });
 }
@@ -96,7 +123,11 @@ fn bench_ensemble(c: &mut Criterion) {
         .iter()
         .enumerate()
         .filter(|&(i, _)| i != best)
-        .map(|(i, v)| CandidateFrame { index: i, camera: &v.camera, depth: &v.depth })
+        .map(|(i, v)| CandidateFrame {
+            index: i,
+            camera: &v.camera,
+            depth: &v.depth,
+        })
         .collect();
     let masks: Vec<Mask> = scene.views.iter().map(|v| v.mask_of(id)).collect();
     let run = || {
@@ -106,7 +137,10 @@ fn bench_ensemble(c: &mut Criterion) {
             .iter()
             .map(|f| {
                 let v = &scene.views[f.index];
-                (f.index, mask_points(&masks[f.index], &v.camera, &v.depth, &p).unwrap_or_default())
+                (
+                    f.index,
+                    mask_points(&masks[f.index], &v.camera, &v.depth, &p).unwrap_or_default(),
+                )
             })
             .collect();
         fuse_views(&anchor, &others, &p)

@@ -20,24 +20,46 @@ fn scannet_size_scene(frames: usize) -> Vec<u8> {
     for i in 0..frames {
         let img = image::RgbImage::from_fn(1296, 968, |x, y| {
             let n = (x.wrapping_mul(2654435761) ^ y.wrapping_mul(40503) ^ i as u32) % 32;
-            image::Rgb([((x / 5) as u8).wrapping_add(n as u8), ((y / 4) as u8).wrapping_add(n as u8), (i * 7) as u8])
+            image::Rgb([
+                ((x / 5) as u8).wrapping_add(n as u8),
+                ((y / 4) as u8).wrapping_add(n as u8),
+                (i * 7) as u8,
+            ])
         });
         let mut jpg = Vec::new();
-        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90).encode_image(&img).expect("jpeg");
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+            .encode_image(&img)
+            .expect("jpeg");
         add(format!("color/{}.jpg", i * 20), &jpg);
-        let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(640, 480, |x, y| image::Luma([800 + ((x * 7 + y * 3) % 3000) as u16]));
+        let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(640, 480, |x, y| {
+            image::Luma([800 + ((x * 7 + y * 3) % 3000) as u16])
+        });
         let mut png = Vec::new();
-        depth.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("png");
+        depth
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .expect("png");
         add(format!("depth/{}.png", i * 20), &png);
-        add(format!("pose/{}.txt", i * 20), format!("1 0 0 {i}\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").as_bytes());
+        add(
+            format!("pose/{}.txt", i * 20),
+            format!("1 0 0 {i}\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").as_bytes(),
+        );
     }
-    add("intrinsic/intrinsic_color.txt".into(), b"1170 0 648 0\n0 1170 484 0\n0 0 1 0\n0 0 0 1\n");
-    add("intrinsic/intrinsic_depth.txt".into(), b"577 0 320 0\n0 577 240 0\n0 0 1 0\n0 0 0 1\n");
+    add(
+        "intrinsic/intrinsic_color.txt".into(),
+        b"1170 0 648 0\n0 1170 484 0\n0 0 1 0\n0 0 0 1\n",
+    );
+    add(
+        "intrinsic/intrinsic_depth.txt".into(),
+        b"577 0 320 0\n0 577 240 0\n0 0 1 0\n0 0 0 1\n",
+    );
     b.into_inner().expect("tar")
 }
 
 fn main() {
-    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().expect("runtime");
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
     rt.block_on(async {
         let dir = tempfile::tempdir().expect("tempdir");
         let cfg = Config { addr: "127.0.0.1:0".into(), data_dir: dir.path().into(), pipeline: "test:delay_ms=1".into(), detector: "none".into(), ..Config::default() };

@@ -123,7 +123,9 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             let decoded = load_frames(&sources).expect("decode");
             let tiles: Vec<(String, &RgbImage)> = ids.iter().cloned().zip(decoded.iter()).collect();
-            stitch_with_specs(&tiles, &specs, &opts).map(|v| v.len()).unwrap_or(0)
+            stitch_with_specs(&tiles, &specs, &opts)
+                .map(|v| v.len())
+                .unwrap_or(0)
         })
     });
     g.finish();

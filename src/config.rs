@@ -109,13 +109,16 @@ impl Config {
     fn from_file(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow::anyhow!("cannot read config file {}: {e}", path.display()))?;
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
+        toml::from_str(&text)
+            .map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
     }
 
     fn apply_env(&mut self) -> anyhow::Result<()> {
         fn num<T: std::str::FromStr>(key: &str, into: &mut T) -> anyhow::Result<()> {
             if let Ok(v) = std::env::var(key) {
-                *into = v.parse().map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
+                *into = v
+                    .parse()
+                    .map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
             }
             Ok(())
         }
@@ -152,10 +155,15 @@ mod tests {
 
     #[test]
     fn a_misspelt_nested_key_is_an_error_naming_it() {
-        let err = parse("[agent.geometry.consensus]\nmask_vote = false\n").err().map(|e| e.to_string());
+        let err = parse("[agent.geometry.consensus]\nmask_vote = false\n")
+            .err()
+            .map(|e| e.to_string());
         let msg = err.unwrap_or_default();
         assert!(msg.contains("mask_vote"), "{msg}");
-        for text in ["[agent]\nimage_limit = 3\nbogus = 1\n", "[agent.geometry.support]\nwal_cut = false\n"] {
+        for text in [
+            "[agent]\nimage_limit = 3\nbogus = 1\n",
+            "[agent.geometry.support]\nwal_cut = false\n",
+        ] {
             assert!(parse(text).is_err(), "accepted {text:?}");
         }
     }

@@ -37,15 +37,33 @@ pub struct Metrics {
 impl Default for Metrics {
     fn default() -> Self {
         let mut registry = Registry::with_prefix("grounder");
-        let http_duration = Family::<HttpLabels, Histogram>::new_with_constructor(|| Histogram::new(exponential_buckets(0.0005, 2.5, 14)));
-        let job_duration = Family::<OutcomeLabels, Histogram>::new_with_constructor(|| Histogram::new(exponential_buckets(0.05, 2.0, 14)));
+        let http_duration = Family::<HttpLabels, Histogram>::new_with_constructor(|| {
+            Histogram::new(exponential_buckets(0.0005, 2.5, 14))
+        });
+        let job_duration = Family::<OutcomeLabels, Histogram>::new_with_constructor(|| {
+            Histogram::new(exponential_buckets(0.05, 2.0, 14))
+        });
         let jobs_by_state = Family::<StateLabels, Gauge>::default();
         let vlm_calls = Counter::default();
-        registry.register("http_request_duration_seconds", "HTTP request latency by route and status", http_duration.clone());
-        registry.register("job_duration_seconds", "Wall time of finished grounding jobs by outcome", job_duration.clone());
+        registry.register(
+            "http_request_duration_seconds",
+            "HTTP request latency by route and status",
+            http_duration.clone(),
+        );
+        registry.register(
+            "job_duration_seconds",
+            "Wall time of finished grounding jobs by outcome",
+            job_duration.clone(),
+        );
         registry.register("jobs", "Jobs by state", jobs_by_state.clone());
         registry.register("vlm_calls", "VLM chat requests sent", vlm_calls.clone());
-        Self { registry: Mutex::new(registry), http_duration, job_duration, jobs_by_state, vlm_calls }
+        Self {
+            registry: Mutex::new(registry),
+            http_duration,
+            job_duration,
+            jobs_by_state,
+            vlm_calls,
+        }
     }
 }
 

@@ -4,11 +4,11 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use tokio::net::TcpListener;
 
+use crate::agent::VlmGrounder;
 use crate::api::{self, AppState, Readiness};
 use crate::config::{Config, ServeArgs};
 use crate::jobs::{Grounder, JobSystem, WorkerConfig};
 use crate::metrics::Metrics;
-use crate::agent::VlmGrounder;
 use crate::store::Store;
 use crate::vision::Detector;
 use crate::vlm::prompts::Prompts;
@@ -26,7 +26,11 @@ impl Application {
         let store = Store::open(&cfg.data_dir).await?;
         let (requeued, failed) = store.recover_jobs(cfg.max_attempts).await?;
         if requeued + failed > 0 {
-            tracing::info!(requeued, failed, "recovered jobs interrupted by the previous process");
+            tracing::info!(
+                requeued,
+                failed,
+                "recovered jobs interrupted by the previous process"
+            );
         }
         // Leftovers of uploads interrupted by a crash.
         let _ = std::fs::remove_dir_all(cfg.data_dir.join("tmp"));
@@ -34,10 +38,25 @@ impl Application {
         let mut readiness = Readiness::default();
         let detector = load_detector(&cfg, &mut readiness);
         let grounder = build_grounder(&cfg, detector.clone(), &mut readiness)?;
-        let jobs = JobSystem::new(store.clone(), grounder, metrics.clone(), WorkerConfig { workers: cfg.workers, data_dir: cfg.data_dir.clone() });
-        let listener = TcpListener::bind(&cfg.addr).await.map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", cfg.addr))?;
+        let jobs = JobSystem::new(
+            store.clone(),
+            grounder,
+            metrics.clone(),
+            WorkerConfig {
+                workers: cfg.workers,
+                data_dir: cfg.data_dir.clone(),
+            },
+        );
+        let listener = TcpListener::bind(&cfg.addr)
+            .await
+            .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", cfg.addr))?;
         let needs_instances = detector.as_ref().is_some_and(|d| d.needs_instances());
-        let on_scene_stored = crate::jobs::indexing::hook(cfg.detector.clone(), detector, store.clone(), jobs.clone());
+        let on_scene_stored = crate::jobs::indexing::hook(
+            cfg.detector.clone(),
+            detector,
+            store.clone(),
+            jobs.clone(),
+        );
         let state = AppState {
             cfg: Arc::new(cfg),
             store,
@@ -57,10 +76,15 @@ impl Application {
     }
 
     /// Serve until `shutdown` resolves; then stop workers, leaving running jobs queued.
-    pub async fn run_until<F: std::future::Future<Output = ()> + Send + 'static>(self, shutdown: F) -> anyhow::Result<()> {
+    pub async fn run_until<F: std::future::Future<Output = ()> + Send + 'static>(
+        self,
+        shutdown: F,
+    ) -> anyhow::Result<()> {
         let jobs = self.state.jobs.clone();
         let app = api::router(self.state);
-        axum::serve(self.listener, app).with_graceful_shutdown(shutdown).await?;
+        axum::serve(self.listener, app)
+            .with_graceful_shutdown(shutdown)
+            .await?;
         jobs.shutdown().await;
         Ok(())
     }
@@ -86,17 +110,35 @@ fn load_detector(cfg: &Config, readiness: &mut Readiness) -> Option<Arc<dyn Dete
 struct Unavailable(String);
 
 impl Grounder for Unavailable {
-    fn ground(&self, _ctx: crate::jobs::JobContext) -> futures::future::BoxFuture<'_, Result<crate::jobs::GroundingOutput, crate::jobs::JobFailure>> {
-        Box::pin(async move { Err(crate::jobs::JobFailure::new("pipeline_unavailable", self.0.clone())) })
+    fn ground(
+        &self,
+        _ctx: crate::jobs::JobContext,
+    ) -> futures::future::BoxFuture<'_, Result<crate::jobs::GroundingOutput, crate::jobs::JobFailure>>
+    {
+        Box::pin(async move {
+            Err(crate::jobs::JobFailure::new(
+                "pipeline_unavailable",
+                self.0.clone(),
+            ))
+        })
     }
 }
 
-fn build_grounder(cfg: &Config, detector: Option<Arc<dyn Detector>>, readiness: &mut Readiness) -> anyhow::Result<Arc<dyn Grounder>> {
+fn build_grounder(
+    cfg: &Config,
+    detector: Option<Arc<dyn Detector>>,
+    readiness: &mut Readiness,
+) -> anyhow::Result<Arc<dyn Grounder>> {
     if cfg.pipeline.starts_with("test") {
-        return Ok(Arc::new(crate::jobs::test_grounder::TestGrounder::from_spec(&cfg.pipeline)?));
+        return Ok(Arc::new(
+            crate::jobs::test_grounder::TestGrounder::from_spec(&cfg.pipeline)?,
+        ));
     }
     if cfg.pipeline != "vlm" {
-        anyhow::bail!("unknown pipeline {:?} (known: vlm, test, test:delay_ms=N)", cfg.pipeline);
+        anyhow::bail!(
+            "unknown pipeline {:?} (known: vlm, test, test:delay_ms=N)",
+            cfg.pipeline
+        );
     }
     match build_vlm_grounder(cfg, detector) {
         Ok(g) => Ok(Arc::new(g)),
@@ -109,12 +151,29 @@ fn build_grounder(cfg: &Config, detector: Option<Arc<dyn Detector>>, readiness: 
     }
 }
 
-fn build_vlm_grounder(cfg: &Config, detector: Option<Arc<dyn Detector>>) -> anyhow::Result<VlmGrounder> {
-    let detector = detector.ok_or_else(|| anyhow::anyhow!("no detector is loaded (GROUNDER_DETECTOR={:?})", cfg.detector))?;
+fn build_vlm_grounder(
+    cfg: &Config,
+    detector: Option<Arc<dyn Detector>>,
+) -> anyhow::Result<VlmGrounder> {
+    let detector = detector.ok_or_else(|| {
+        anyhow::anyhow!(
+            "no detector is loaded (GROUNDER_DETECTOR={:?})",
+            cfg.detector
+        )
+    })?;
     let segmenter = crate::vision::build_segmenter(&cfg.segmenter, &cfg.vision())?;
-    let prompts = Prompts::load(cfg.prompts_dir.as_deref()).map_err(|e| anyhow::anyhow!("prompts: {e}"))?;
-    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_else(VlmConfig::from_env)).map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
-    Ok(VlmGrounder::new(client, prompts, detector, cfg.detector.clone(), segmenter, cfg.agent.clone()))
+    let prompts =
+        Prompts::load(cfg.prompts_dir.as_deref()).map_err(|e| anyhow::anyhow!("prompts: {e}"))?;
+    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_else(VlmConfig::from_env))
+        .map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
+    Ok(VlmGrounder::new(
+        client,
+        prompts,
+        detector,
+        cfg.detector.clone(),
+        segmenter,
+        cfg.agent.clone(),
+    ))
 }
 
 /// `grounder serve`.

@@ -70,11 +70,24 @@ async fn serve_without_runtime_is_live_but_not_ready() {
     let check = async {
         let url = url.expect("serve printed its address");
         let http = reqwest::Client::new();
-        let live = http.get(format!("{url}/healthz")).send().await.expect("healthz");
+        let live = http
+            .get(format!("{url}/healthz"))
+            .send()
+            .await
+            .expect("healthz");
         assert_eq!(live.status(), 200);
-        let ready = http.get(format!("{url}/readyz")).send().await.expect("readyz");
+        let ready = http
+            .get(format!("{url}/readyz"))
+            .send()
+            .await
+            .expect("readyz");
         assert_eq!(ready.status(), 503);
-        let ct = ready.headers().get("content-type").and_then(|v| v.to_str().ok()).unwrap_or_default().to_string();
+        let ct = ready
+            .headers()
+            .get("content-type")
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or_default()
+            .to_string();
         assert!(ct.starts_with("application/problem+json"), "{ct}");
         let body: serde_json::Value = ready.json().await.expect("problem JSON");
         assert_eq!(body["code"], "not_ready", "{body}");

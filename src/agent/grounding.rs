@@ -40,10 +40,24 @@ pub struct Conversation<'a> {
 impl Conversation<'_> {
     /// Send the conversation; returns the reply text and its trace record (new messages
     /// since the last call, and the reply).
-    pub async fn ask(&mut self, g: &VlmGrounder, budget: &CallBudget) -> Result<(String, Value), JobFailure> {
-        let images_before: usize = self.messages[..self.logged].iter().map(Message::image_count).sum();
-        let sent = VlmLog::messages_json(&self.messages[self.logged..], &self.image_urls[images_before.min(self.image_urls.len())..]);
-        let reply = g.client.chat(&self.messages, budget).await.map_err(vlm_failure)?;
+    pub async fn ask(
+        &mut self,
+        g: &VlmGrounder,
+        budget: &CallBudget,
+    ) -> Result<(String, Value), JobFailure> {
+        let images_before: usize = self.messages[..self.logged]
+            .iter()
+            .map(Message::image_count)
+            .sum();
+        let sent = VlmLog::messages_json(
+            &self.messages[self.logged..],
+            &self.image_urls[images_before.min(self.image_urls.len())..],
+        );
+        let reply = g
+            .client
+            .chat(&self.messages, budget)
+            .await
+            .map_err(vlm_failure)?;
         let rec = self.log.reply(&reply);
         self.messages.push(Message::assistant(reply.text.clone()));
         self.logged = self.messages.len();
@@ -54,7 +68,13 @@ impl Conversation<'_> {
     pub fn feedback(&mut self, g: &VlmGrounder, text: String, why: &str) -> Result<(), JobFailure> {
         self.rounds += 1;
         if self.rounds > g.params.max_retries {
-            return Err(JobFailure::new("retry_limit_reached", format!("no valid answer after {} feedback rounds; last problem: {why}", g.params.max_retries)));
+            return Err(JobFailure::new(
+                "retry_limit_reached",
+                format!(
+                    "no valid answer after {} feedback rounds; last problem: {why}",
+                    g.params.max_retries
+                ),
+            ));
         }
         self.messages.push(Message::user(text));
         Ok(())
@@ -62,7 +82,12 @@ impl Conversation<'_> {
 }
 
 /// Run the detector on one frame (with ground truth for the oracle detector).
-pub async fn redetect(g: &VlmGrounder, ctx: &JobContext, frame_idx: usize, image: Arc<RgbImage>) -> Result<Vec<Detection>, JobFailure> {
+pub async fn redetect(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    frame_idx: usize,
+    image: Arc<RgbImage>,
+) -> Result<Vec<Detection>, JobFailure> {
     let frame = ctx.scene.frames[frame_idx].clone();
     let labels = ctx.scene.instance_labels.clone();
     let detector = g.detector.clone();
@@ -71,8 +96,14 @@ pub async fn redetect(g: &VlmGrounder, ctx: &JobContext, frame_idx: usize, image
             (Some(p), true) => Some(read_instance_mask(p)?),
             _ => None,
         };
-        let labels: Option<std::collections::HashMap<u32, String>> = labels.map(|l| l.into_iter().collect());
-        let input = DetectInput { color: &image, instances: instances.as_ref(), labels: labels.as_ref(), frame_key: frame_idx as u64 };
+        let labels: Option<std::collections::HashMap<u32, String>> =
+            labels.map(|l| l.into_iter().collect());
+        let input = DetectInput {
+            color: &image,
+            instances: instances.as_ref(),
+            labels: labels.as_ref(),
+            frame_key: frame_idx as u64,
+        };
         detector.detect(&input)
     })
     .await
@@ -82,18 +113,44 @@ pub async fn redetect(g: &VlmGrounder, ctx: &JobContext, frame_idx: usize, image
 
 /// Read a 16-bit instance-id PNG.
 pub fn read_instance_mask(path: &std::path::Path) -> anyhow::Result<InstanceMask> {
-    let img = image::open(path).map_err(|e| anyhow::anyhow!("cannot read instance mask {}: {e}", path.display()))?.into_luma16();
-    Ok(InstanceMask { width: img.width(), height: img.height(), data: img.into_raw() })
+    let img = image::open(path)
+        .map_err(|e| anyhow::anyhow!("cannot read instance mask {}: {e}", path.display()))?
+        .into_luma16();
+    Ok(InstanceMask {
+        width: img.width(),
+        height: img.height(),
+        data: img.into_raw(),
+    })
 }
 
 /// Record the exchanges of a failed grounding and return the failure.
-async fn fail_with_trace(ctx: &JobContext, e: JobFailure, exchanges: Vec<Value>, t: Instant) -> Result<Choice, JobFailure> {
-    step(ctx, "image_selection", json!({}), json!({"failed": true, "reason": e.code, "vlm": exchanges}), t).await;
+async fn fail_with_trace(
+    ctx: &JobContext,
+    e: JobFailure,
+    exchanges: Vec<Value>,
+    t: Instant,
+) -> Result<Choice, JobFailure> {
+    step(
+        ctx,
+        "image_selection",
+        json!({}),
+        json!({"failed": true, "reason": e.code, "vlm": exchanges}),
+        t,
+    )
+    .await;
     Err(e)
 }
 
 #[allow(clippy::too_many_arguments)]
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &mut VlmLog, analysis: &QueryAnalysis, pre: &Preselection, grids: &Grids) -> Result<Choice, JobFailure> {
+pub async fn run(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    budget: &CallBudget,
+    log: &mut VlmLog,
+    analysis: &QueryAnalysis,
+    pre: &Preselection,
+    grids: &Grids,
+) -> Result<Choice, JobFailure> {
     let t = Instant::now();
     let offered: Vec<u32> = pre.frames.iter().map(|&i| i as u32).collect();
     let text = g.prompts.grounding_input(&GroundingInput {
@@ -104,9 +161,16 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
         image_ids: &offered,
         num_grids: grids.images.len(),
     });
-    let images = grids.images.iter().map(|s| ImageData::jpeg(s.jpeg.clone())).collect();
+    let images = grids
+        .images
+        .iter()
+        .map(|s| ImageData::jpeg(s.jpeg.clone()))
+        .collect();
     let mut conv = Conversation {
-        messages: vec![Message::system(g.prompts.grounding_system()), Message::user_with_images(text, images)],
+        messages: vec![
+            Message::system(g.prompts.grounding_system()),
+            Message::user_with_images(text, images),
+        ],
         image_urls: grids.urls.clone(),
         logged: 0,
         log,
@@ -123,16 +187,25 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
                 rec["invalid"] = json!(format!("unparsable reply: {e}"));
                 rec["feedback"] = json!(fb);
                 exchanges.push(rec);
-                if let Err(e) = conv.feedback(g, fb, "unparsable reply") { return fail_with_trace(ctx, e, exchanges, t).await; }
+                if let Err(e) = conv.feedback(g, fb, "unparsable reply") {
+                    return fail_with_trace(ctx, e, exchanges, t).await;
+                }
                 continue;
             }
         };
         if !offered.contains(&answer.target_image_id) {
-            let fb = g.prompts.feedback_image_invalid(&answer.target_image_id_text, &offered);
-            rec["invalid"] = json!(format!("image id {:?} was not offered", answer.target_image_id_text));
+            let fb = g
+                .prompts
+                .feedback_image_invalid(&answer.target_image_id_text, &offered);
+            rec["invalid"] = json!(format!(
+                "image id {:?} was not offered",
+                answer.target_image_id_text
+            ));
             rec["feedback"] = json!(fb);
             exchanges.push(rec);
-            if let Err(e) = conv.feedback(g, fb, "invalid image id") { return fail_with_trace(ctx, e, exchanges, t).await; }
+            if let Err(e) = conv.feedback(g, fb, "invalid image id") {
+                return fail_with_trace(ctx, e, exchanges, t).await;
+            }
             continue;
         }
         let idx = answer.target_image_id as usize;
@@ -151,23 +224,54 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
             return Err(JobFailure::new("detector_cannot_see_class", format!("the detector has no class for {class:?}, so no box can be proposed in the chosen image")));
         };
         let td = Instant::now();
-        let image = super::stitching::decode(&ctx.scene, &[idx]).await?.remove(&idx).ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?;
-        let dets: Vec<Detection> = redetect(g, ctx, idx, image.clone()).await?.into_iter().filter(|d| same_class(&d.label, det_class)).collect();
-        let det_json: Vec<Value> = dets.iter().map(|d| json!({"box": d.bbox, "score": d.score, "label": d.label})).collect();
+        let image = super::stitching::decode(&ctx.scene, &[idx])
+            .await?
+            .remove(&idx)
+            .ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?;
+        let dets: Vec<Detection> = redetect(g, ctx, idx, image.clone())
+            .await?
+            .into_iter()
+            .filter(|d| same_class(&d.label, det_class))
+            .collect();
+        let det_json: Vec<Value> = dets
+            .iter()
+            .map(|d| json!({"box": d.bbox, "score": d.score, "label": d.label}))
+            .collect();
         step(ctx, "detection", json!({"image_id": format!("{idx:05}"), "class": det_class}), json!({"image_id": format!("{idx:05}"), "frame": ctx.scene.frames[idx].name, "detections": det_json}), td).await;
         match dets.len() {
             0 => {
                 let fb = g.prompts.feedback_object_not_existing(idx as u32, class);
                 exchanges.push(json!({"feedback": fb, "invalid": format!("no {det_class} detected in image {idx:05}")}));
-                if let Err(e) = conv.feedback(g, fb, "no target detected in the chosen image") { return fail_with_trace(ctx, e, exchanges, t).await; }
+                if let Err(e) = conv.feedback(g, fb, "no target detected in the chosen image") {
+                    return fail_with_trace(ctx, e, exchanges, t).await;
+                }
             }
             1 => {
-                step(ctx, "instance_selection", json!({"candidates": 1}), json!({"index": 0, "box": dets[0].bbox, "asked_vlm": false}), td).await;
-                return Ok(Choice { frame_idx: idx, bbox: dets[0].bbox, image, feedback_rounds: conv.rounds });
+                step(
+                    ctx,
+                    "instance_selection",
+                    json!({"candidates": 1}),
+                    json!({"index": 0, "box": dets[0].bbox, "asked_vlm": false}),
+                    td,
+                )
+                .await;
+                return Ok(Choice {
+                    frame_idx: idx,
+                    bbox: dets[0].bbox,
+                    image,
+                    feedback_rounds: conv.rounds,
+                });
             }
             _ => {
-                let bbox = instance::select(g, ctx, budget, &mut conv, analysis, idx, &image, &dets).await?;
-                return Ok(Choice { frame_idx: idx, bbox, image, feedback_rounds: conv.rounds });
+                let bbox =
+                    instance::select(g, ctx, budget, &mut conv, analysis, idx, &image, &dets)
+                        .await?;
+                return Ok(Choice {
+                    frame_idx: idx,
+                    bbox,
+                    image,
+                    feedback_rounds: conv.rounds,
+                });
             }
         }
     }

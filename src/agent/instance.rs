@@ -17,17 +17,38 @@ use crate::vlm::prompts::{InstanceInput, ReplyKind};
 use crate::vlm::{CallBudget, ImageData, Message};
 
 #[allow(clippy::too_many_arguments)]
-pub async fn select(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, conv: &mut Conversation<'_>, analysis: &QueryAnalysis, idx: usize, image: &RgbImage, dets: &[Detection]) -> Result<[f32; 4], JobFailure> {
+pub async fn select(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    budget: &CallBudget,
+    conv: &mut Conversation<'_>,
+    analysis: &QueryAnalysis,
+    idx: usize,
+    image: &RgbImage,
+    dets: &[Detection],
+) -> Result<[f32; 4], JobFailure> {
     let t = Instant::now();
-    let boxes: Vec<(String, [f32; 4])> = dets.iter().enumerate().map(|(i, d)| (i.to_string(), d.bbox)).collect();
+    let boxes: Vec<(String, [f32; 4])> = dets
+        .iter()
+        .enumerate()
+        .map(|(i, d)| (i.to_string(), d.bbox))
+        .collect();
     let opts = g.params.annotate.clone();
     let img = image.clone();
     let quality = g.params.stitch.jpeg_quality;
-    let jpeg = tokio::task::spawn_blocking(move || annotate_instances(&img, &boxes, &opts).and_then(|a| encode_jpeg(&a, quality)))
-        .await
-        .map_err(|e| JobFailure::new("internal", format!("annotation task failed: {e}")))?
-        .map_err(|e| JobFailure::new("annotation_failed", format!("{e:#}")))?;
-    let url = ctx.trace.artifact(&format!("instances_{idx:05}_{}.jpg", conv.rounds), jpeg.clone()).await?;
+    let jpeg = tokio::task::spawn_blocking(move || {
+        annotate_instances(&img, &boxes, &opts).and_then(|a| encode_jpeg(&a, quality))
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("annotation task failed: {e}")))?
+    .map_err(|e| JobFailure::new("annotation_failed", format!("{e:#}")))?;
+    let url = ctx
+        .trace
+        .artifact(
+            &format!("instances_{idx:05}_{}.jpg", conv.rounds),
+            jpeg.clone(),
+        )
+        .await?;
     let candidates: Vec<[f32; 4]> = dets.iter().map(|d| d.bbox).collect();
     let text = g.prompts.instance_selection(&InstanceInput {
         query: &ctx.query,
@@ -37,7 +58,8 @@ pub async fn select(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, conv
         height: image.height(),
         candidates: &candidates,
     });
-    conv.messages.push(Message::user_with_images(text, vec![ImageData::jpeg(jpeg)]));
+    conv.messages
+        .push(Message::user_with_images(text, vec![ImageData::jpeg(jpeg)]));
     conv.image_urls.push(url.clone());
     let mut exchanges: Vec<Value> = Vec::new();
     loop {
@@ -56,14 +78,28 @@ pub async fn select(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, conv
                 .await;
                 return Ok(dets[i].bbox);
             }
-            Ok(a) => (g.prompts.feedback_object_id_invalid(&a.object_id_text, dets.len()), format!("object id {:?} is not a candidate", a.object_id_text)),
-            Err(e) => (g.prompts.feedback_unparsable(ReplyKind::Instance), format!("unparsable reply: {e}")),
+            Ok(a) => (
+                g.prompts
+                    .feedback_object_id_invalid(&a.object_id_text, dets.len()),
+                format!("object id {:?} is not a candidate", a.object_id_text),
+            ),
+            Err(e) => (
+                g.prompts.feedback_unparsable(ReplyKind::Instance),
+                format!("unparsable reply: {e}"),
+            ),
         };
         rec["invalid"] = json!(why);
         rec["feedback"] = json!(fb);
         exchanges.push(rec);
         if let Err(e) = conv.feedback(g, fb, &why) {
-            step(ctx, "instance_selection", json!({"candidates": dets.len(), "annotated": url}), json!({"failed": true, "vlm": exchanges}), t).await;
+            step(
+                ctx,
+                "instance_selection",
+                json!({"candidates": dets.len(), "annotated": url}),
+                json!({"failed": true, "vlm": exchanges}),
+                t,
+            )
+            .await;
             return Err(e);
         }
     }

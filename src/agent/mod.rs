@@ -89,8 +89,23 @@ pub struct VlmGrounder {
 }
 
 impl VlmGrounder {
-    pub fn new(client: VlmClient, prompts: Prompts, detector: Arc<dyn Detector>, detector_key: String, segmenter: Arc<dyn Segmenter>, params: AgentParams) -> Self {
-        Self { client, prompts, detector, detector_key, segmenter, params, analysis_cache: Mutex::new(HashMap::new()) }
+    pub fn new(
+        client: VlmClient,
+        prompts: Prompts,
+        detector: Arc<dyn Detector>,
+        detector_key: String,
+        segmenter: Arc<dyn Segmenter>,
+        params: AgentParams,
+    ) -> Self {
+        Self {
+            client,
+            prompts,
+            detector,
+            detector_key,
+            segmenter,
+            params,
+            analysis_cache: Mutex::new(HashMap::new()),
+        }
     }
 }
 
@@ -100,16 +115,32 @@ pub(crate) fn ms(t: Instant) -> f64 {
 }
 
 /// Append a step with inputs, outputs and its duration.
-pub(crate) async fn step(ctx: &JobContext, name: &str, inputs: Value, outputs: Value, started: Instant) {
-    ctx.trace.step(name, json!({"inputs": inputs, "outputs": outputs, "ms": ms(started)})).await;
+pub(crate) async fn step(
+    ctx: &JobContext,
+    name: &str,
+    inputs: Value,
+    outputs: Value,
+    started: Instant,
+) {
+    ctx.trace
+        .step(
+            name,
+            json!({"inputs": inputs, "outputs": outputs, "ms": ms(started)}),
+        )
+        .await;
 }
 
 /// Map a VLM client error to the job's failure.
 pub(crate) fn vlm_failure(e: VlmError) -> JobFailure {
     match e {
         VlmError::Cancelled => JobFailure::new("canceled", "canceled while waiting for the VLM"),
-        VlmError::CallBudgetExhausted { max_calls } => JobFailure::new("vlm_budget_exhausted", format!("the job used its budget of {max_calls} VLM calls")),
-        VlmError::DeadlineExceeded => JobFailure::new("job_timeout", "the job ran out of wall time"),
+        VlmError::CallBudgetExhausted { max_calls } => JobFailure::new(
+            "vlm_budget_exhausted",
+            format!("the job used its budget of {max_calls} VLM calls"),
+        ),
+        VlmError::DeadlineExceeded => {
+            JobFailure::new("job_timeout", "the job ran out of wall time")
+        }
         other => JobFailure::new("vlm_unavailable", other.to_string()),
     }
 }
@@ -123,7 +154,11 @@ impl Grounder for VlmGrounder {
 impl VlmGrounder {
     async fn run(&self, ctx: JobContext) -> Result<GroundingOutput, JobFailure> {
         let started = Instant::now();
-        let budget = CallBudget::with_cancel(self.params.max_vlm_calls, Some(Duration::from_secs(self.params.max_job_seconds)), ctx.cancel.clone());
+        let budget = CallBudget::with_cancel(
+            self.params.max_vlm_calls,
+            Some(Duration::from_secs(self.params.max_job_seconds)),
+            ctx.cancel.clone(),
+        );
         let mut log = vlm_log::VlmLog::default();
 
         let analysis = query_analysis::run(self, &ctx, &budget, &mut log).await?;
@@ -131,7 +166,8 @@ impl VlmGrounder {
         let pre = preselect::run(self, &ctx, &analysis, layout.as_ref()).await?;
         let grids = stitching::run(self, &ctx, &pre).await?;
         let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
-        let projected = projection::run(self, &ctx, &analysis.target_class, &pre, &choice, layout).await?;
+        let projected =
+            projection::run(self, &ctx, &analysis.target_class, &pre, &choice, layout).await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();
@@ -143,15 +179,26 @@ impl VlmGrounder {
             "tokens": {"prompt": usage.prompt, "completion": usage.completion, "total": usage.total},
             "feedback_rounds": choice.feedback_rounds,
         });
-        ctx.trace.step("summary", json!({"outputs": summary.clone(), "ms": total_ms})).await;
+        ctx.trace
+            .step(
+                "summary",
+                json!({"outputs": summary.clone(), "ms": total_ms}),
+            )
+            .await;
         let mut extra = serde_json::Map::new();
         extra.insert("image_id".into(), json!(format!("{:05}", choice.frame_idx)));
-        extra.insert("frame".into(), json!(ctx.scene.frames[choice.frame_idx].name));
+        extra.insert(
+            "frame".into(),
+            json!(ctx.scene.frames[choice.frame_idx].name),
+        );
         extra.insert("detection_box".into(), json!(choice.bbox));
         extra.insert("target_class".into(), json!(analysis.target_class));
         extra.insert("views_used".into(), json!(projected.views_used));
         extra.insert("usage".into(), json!({"vlm_calls": budget.calls_used(), "total_tokens": usage.total, "prompt_tokens": usage.prompt, "completion_tokens": usage.completion}));
         extra.insert("stats".into(), summary);
-        Ok(GroundingOutput { bbox: projected.bbox, extra })
+        Ok(GroundingOutput {
+            bbox: projected.bbox,
+            extra,
+        })
     }
 }

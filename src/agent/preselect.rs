@@ -24,7 +24,8 @@ pub struct Preselection {
 
 /// Does a detection label name the detector class (compared in normalised form)?
 pub fn same_class(label: &str, class: &str) -> bool {
-    label == class || crate::vision::synonyms::normalize(label) == crate::vision::synonyms::normalize(class)
+    label == class
+        || crate::vision::synonyms::normalize(label) == crate::vision::synonyms::normalize(class)
 }
 
 /// `n` indices spread evenly over `items` (all of them when there are fewer).
@@ -38,23 +39,53 @@ pub fn evenly_sampled(items: &[usize], n: usize) -> Vec<usize> {
 /// `layout`: the room's box when the target is flat against a wall; then a detection's
 /// pixels without depth whose ray leaves the room beyond the sensor's range count as
 /// measured (projection ends them on the wall).
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis, layout: Option<&RoomLayout>) -> Result<Preselection, JobFailure> {
+pub async fn run(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    analysis: &QueryAnalysis,
+    layout: Option<&RoomLayout>,
+) -> Result<Preselection, JobFailure> {
     let t = Instant::now();
     let usable: Vec<usize> = ctx.scene.usable_frames().map(|f| f.idx).collect();
     if usable.is_empty() {
-        return Err(JobFailure::new("no_usable_frames", "every frame of the scene has an invalid pose"));
+        return Err(JobFailure::new(
+            "no_usable_frames",
+            "every frame of the scene has an invalid pose",
+        ));
     }
     let class = g.detector.can_see(&analysis.target_class);
     let mut no_depth: Vec<usize> = Vec::new();
     let mut depth_tier: Option<f64> = None;
     let (frames, fallback) = match &class {
-        None => (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("detector cannot see this class: {:?}", analysis.target_class))),
+        None => (
+            evenly_sampled(&usable, g.params.fallback_frames),
+            Some(format!(
+                "detector cannot see this class: {:?}",
+                analysis.target_class
+            )),
+        ),
         Some(c) => {
-            let dets = ctx.store.detections(&ctx.scene.id, &g.detector_key).await.map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
-            let is_hit = |d: &crate::vision::Detection| same_class(&d.label, c) && d.score > g.params.preselect_score;
-            let hits: Vec<usize> = usable.iter().copied().filter(|i| dets.get(i).is_some_and(|d| d.iter().any(is_hit))).collect();
+            let dets = ctx
+                .store
+                .detections(&ctx.scene.id, &g.detector_key)
+                .await
+                .map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
+            let is_hit = |d: &crate::vision::Detection| {
+                same_class(&d.label, c) && d.score > g.params.preselect_score
+            };
+            let hits: Vec<usize> = usable
+                .iter()
+                .copied()
+                .filter(|i| dets.get(i).is_some_and(|d| d.iter().any(is_hit)))
+                .collect();
             if hits.is_empty() {
-                (evenly_sampled(&usable, g.params.fallback_frames), Some(format!("no frame has a {c:?} detection above {}", g.params.preselect_score)))
+                (
+                    evenly_sampled(&usable, g.params.fallback_frames),
+                    Some(format!(
+                        "no frame has a {c:?} detection above {}",
+                        g.params.preselect_score
+                    )),
+                )
             } else {
                 // A frame whose every detection of the class lies where the sensor read no
                 // depth (too far, glass, a dark surface) cannot give a 3D box, and one where
@@ -65,17 +96,32 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis, la
                     .iter()
                     .map(|i| {
                         let f = &ctx.scene.frames[*i];
-                        dets.get(i).map_or(0.0, |d| d.iter().filter(|d| is_hit(d)).map(|d| depth_fraction(f, d.bbox, layout, &g.params.geometry.layout)).fold(0.0, f64::max))
+                        dets.get(i).map_or(0.0, |d| {
+                            d.iter()
+                                .filter(|d| is_hit(d))
+                                .map(|d| {
+                                    depth_fraction(f, d.bbox, layout, &g.params.geometry.layout)
+                                })
+                                .fold(0.0, f64::max)
+                        })
                     })
                     .collect();
-                let (keep, dropped, tier) = split_by_depth(&hits, &best, g.params.good_depth_fraction, g.params.min_depth_fraction);
+                let (keep, dropped, tier) = split_by_depth(
+                    &hits,
+                    &best,
+                    g.params.good_depth_fraction,
+                    g.params.min_depth_fraction,
+                );
                 no_depth = dropped;
                 depth_tier = tier;
                 (keep, None)
             }
         }
     };
-    let names: Vec<&str> = frames.iter().map(|&i| ctx.scene.frames[i].name.as_str()).collect();
+    let names: Vec<&str> = frames
+        .iter()
+        .map(|&i| ctx.scene.frames[i].name.as_str())
+        .collect();
     let image_ids: Vec<String> = frames.iter().map(|i| format!("{i:05}")).collect();
     step(
         ctx,
@@ -85,26 +131,56 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, analysis: &QueryAnalysis, la
         t,
     )
     .await;
-    Ok(Preselection { frames, detector_class: class, fallback })
+    Ok(Preselection {
+        frames,
+        detector_class: class,
+        fallback,
+    })
 }
 
 /// The frames to offer given each frame's best depth fraction of a target detection
 /// (`best[k]` for `hits[k]`): those at `good` or above when any are, else those at `min`
 /// or above when any are, else all. Also the frames dropped and the fraction applied.
-pub fn split_by_depth(hits: &[usize], best: &[f64], good: f64, min: f64) -> (Vec<usize>, Vec<usize>, Option<f64>) {
-    let Some(t) = [good, min].into_iter().find(|&t| best.iter().any(|&b| b >= t)) else {
+pub fn split_by_depth(
+    hits: &[usize],
+    best: &[f64],
+    good: f64,
+    min: f64,
+) -> (Vec<usize>, Vec<usize>, Option<f64>) {
+    let Some(t) = [good, min]
+        .into_iter()
+        .find(|&t| best.iter().any(|&b| b >= t))
+    else {
         return (hits.to_vec(), Vec::new(), None);
     };
-    let (keep, drop): (Vec<(usize, f64)>, Vec<(usize, f64)>) = hits.iter().copied().zip(best.iter().copied()).partition(|(_, b)| *b >= t);
-    (keep.into_iter().map(|(i, _)| i).collect(), drop.into_iter().map(|(i, _)| i).collect(), Some(t))
+    let (keep, drop): (Vec<(usize, f64)>, Vec<(usize, f64)>) = hits
+        .iter()
+        .copied()
+        .zip(best.iter().copied())
+        .partition(|(_, b)| *b >= t);
+    (
+        keep.into_iter().map(|(i, _)| i).collect(),
+        drop.into_iter().map(|(i, _)| i).collect(),
+        Some(t),
+    )
 }
 
 /// Share of the depth pixels under colour box `b` of frame `f` that hold a reading
 /// (sampled on a grid of at most 32 x 32); with a `layout`, an empty pixel whose ray leaves
 /// the room beyond the sensor's range counts as read.
-pub fn depth_fraction(f: &crate::scene::FrameData, b: [f32; 4], layout: Option<&RoomLayout>, lp: &LayoutParams) -> f64 {
+pub fn depth_fraction(
+    f: &crate::scene::FrameData,
+    b: [f32; 4],
+    layout: Option<&RoomLayout>,
+    lp: &LayoutParams,
+) -> f64 {
     let (w, h) = (f.camera.color.width as f32, f.camera.color.height as f32);
-    let (x0, y0, x1, y1) = (b[0].clamp(0.0, w), b[1].clamp(0.0, h), b[2].clamp(0.0, w), b[3].clamp(0.0, h));
+    let (x0, y0, x1, y1) = (
+        b[0].clamp(0.0, w),
+        b[1].clamp(0.0, h),
+        b[2].clamp(0.0, w),
+        b[3].clamp(0.0, h),
+    );
     if x1 <= x0 || y1 <= y0 {
         return 0.0;
     }
@@ -117,7 +193,12 @@ pub fn depth_fraction(f: &crate::scene::FrameData, b: [f32; 4], layout: Option<&
             let v = y0 + (y1 - y0) * (j as f32 + 0.5) / N as f32;
             let (du, dv) = f.camera.depth_pixel_for_color(f64::from(u), f64::from(v));
             seen += 1;
-            let placeable = || layout.is_some_and(|l| l.exit_depth(&f.camera, &cam_to_out, f64::from(u), f64::from(v)).is_some_and(|z| l.beyond_range(z, lp)));
+            let placeable = || {
+                layout.is_some_and(|l| {
+                    l.exit_depth(&f.camera, &cam_to_out, f64::from(u), f64::from(v))
+                        .is_some_and(|z| l.beyond_range(z, lp))
+                })
+            };
             valid += usize::from(f.depth.get(du, dv) > 0 || placeable());
         }
     }
@@ -140,9 +221,18 @@ mod tests {
     fn well_measured_frames_are_preferred_then_any_with_depth_then_all() {
         use super::split_by_depth;
         let hits = [3, 7, 9];
-        assert_eq!(split_by_depth(&hits, &[0.3, 0.9, 0.1], 0.6, 0.2), (vec![7], vec![3, 9], Some(0.6)));
-        assert_eq!(split_by_depth(&hits, &[0.3, 0.5, 0.1], 0.6, 0.2), (vec![3, 7], vec![9], Some(0.2)));
-        assert_eq!(split_by_depth(&hits, &[0.0, 0.1, 0.1], 0.6, 0.2), (vec![3, 7, 9], vec![], None));
+        assert_eq!(
+            split_by_depth(&hits, &[0.3, 0.9, 0.1], 0.6, 0.2),
+            (vec![7], vec![3, 9], Some(0.6))
+        );
+        assert_eq!(
+            split_by_depth(&hits, &[0.3, 0.5, 0.1], 0.6, 0.2),
+            (vec![3, 7], vec![9], Some(0.2))
+        );
+        assert_eq!(
+            split_by_depth(&hits, &[0.0, 0.1, 0.1], 0.6, 0.2),
+            (vec![3, 7, 9], vec![], None)
+        );
     }
 
     #[test]
@@ -151,13 +241,54 @@ mod tests {
         use nalgebra::Matrix4;
         use std::sync::Arc;
         // Colour 80x60, depth 40x30: the left half of the depth image has no reading.
-        let depth = DepthMap::new(40, 30, (0..40 * 30).map(|i| if i % 40 < 20 { 0 } else { 1500 }).collect());
-        let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
-        let camera = FrameCamera { color, depth: None, depth_size: (40, 30), pose: Matrix4::identity(), align: Matrix4::identity() };
-        let f = crate::scene::FrameData { idx: 0, name: "0".into(), usable: true, camera, depth: Arc::new(depth), color_path: "0.jpg".into(), instance_path: None };
-        assert_eq!(super::depth_fraction(&f, [0.0, 0.0, 38.0, 60.0], None, &Default::default()), 0.0);
-        assert_eq!(super::depth_fraction(&f, [40.0, 0.0, 80.0, 60.0], None, &Default::default()), 1.0);
-        assert!((super::depth_fraction(&f, [20.0, 10.0, 60.0, 50.0], None, &Default::default()) - 0.5).abs() < 0.05);
-        assert_eq!(super::depth_fraction(&f, [90.0, 0.0, 100.0, 10.0], None, &Default::default()), 0.0, "outside the image");
+        let depth = DepthMap::new(
+            40,
+            30,
+            (0..40 * 30)
+                .map(|i| if i % 40 < 20 { 0 } else { 1500 })
+                .collect(),
+        );
+        let color = Intrinsics {
+            fx: 60.0,
+            fy: 60.0,
+            cx: 39.5,
+            cy: 29.5,
+            width: 80,
+            height: 60,
+        };
+        let camera = FrameCamera {
+            color,
+            depth: None,
+            depth_size: (40, 30),
+            pose: Matrix4::identity(),
+            align: Matrix4::identity(),
+        };
+        let f = crate::scene::FrameData {
+            idx: 0,
+            name: "0".into(),
+            usable: true,
+            camera,
+            depth: Arc::new(depth),
+            color_path: "0.jpg".into(),
+            instance_path: None,
+        };
+        assert_eq!(
+            super::depth_fraction(&f, [0.0, 0.0, 38.0, 60.0], None, &Default::default()),
+            0.0
+        );
+        assert_eq!(
+            super::depth_fraction(&f, [40.0, 0.0, 80.0, 60.0], None, &Default::default()),
+            1.0
+        );
+        assert!(
+            (super::depth_fraction(&f, [20.0, 10.0, 60.0, 50.0], None, &Default::default()) - 0.5)
+                .abs()
+                < 0.05
+        );
+        assert_eq!(
+            super::depth_fraction(&f, [90.0, 0.0, 100.0, 10.0], None, &Default::default()),
+            0.0,
+            "outside the image"
+        );
     }
 }

@@ -17,9 +17,15 @@ use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
 use super::{ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
-use crate::geometry::ensemble::{chamfer_decisions, find_views_with_room, fuse_clouds, mask_points, single_view_box, CandidateFrame};
+use crate::geometry::ensemble::{
+    chamfer_decisions, find_views_with_room, fuse_clouds, mask_points, single_view_box,
+    CandidateFrame,
+};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{estimate_room, fill_depth, voxel_downsample, RoomLayout, cut_wall_leaks, snap_planar_to_wall, Aabb, GeometryParams, Mask, WallCut};
+use crate::geometry::{
+    cut_wall_leaks, estimate_room, fill_depth, snap_planar_to_wall, voxel_downsample, Aabb,
+    GeometryParams, Mask, RoomLayout, WallCut,
+};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{SegmentInput, Segmenter};
@@ -58,7 +64,15 @@ pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4
     boxes
         .iter()
         .filter_map(|b| {
-            let inside = pixels.iter().filter(|&&[x, y]| (x as f32) >= b[0] && (x as f32) < b[2] && (y as f32) >= b[1] && (y as f32) < b[3]).count();
+            let inside = pixels
+                .iter()
+                .filter(|&&[x, y]| {
+                    (x as f32) >= b[0]
+                        && (x as f32) < b[2]
+                        && (y as f32) >= b[1]
+                        && (y as f32) < b[3]
+                })
+                .count();
             let area = ((b[2] - b[0]) * (b[3] - b[1])).max(1.0);
             (2 * inside >= pixels.len()).then_some((inside as f32 / area, *b))
         })
@@ -78,29 +92,61 @@ struct ViewCloud {
 
 /// `cut_walls`: remove wall patches the mask leaked onto (not for objects that are flat
 /// against a wall: there the wall is the object's own plane).
-fn segment_points(seg: &dyn Segmenter, frame: &FrameData, image: &RgbImage, bbox: [f32; 4], params: &GeometryParams, cut_walls: bool) -> anyhow::Result<ViewCloud> {
-    let mask = seg.segment(&SegmentInput { color: image, depth: &frame.depth, camera: &frame.camera }, bbox)?;
-    let points = mask_points(&mask, &frame.camera, &frame.depth, params).map_err(|e| anyhow::anyhow!("{e}"))?;
+fn segment_points(
+    seg: &dyn Segmenter,
+    frame: &FrameData,
+    image: &RgbImage,
+    bbox: [f32; 4],
+    params: &GeometryParams,
+    cut_walls: bool,
+) -> anyhow::Result<ViewCloud> {
+    let mask = seg.segment(
+        &SegmentInput {
+            color: image,
+            depth: &frame.depth,
+            camera: &frame.camera,
+        },
+        bbox,
+    )?;
+    let points = mask_points(&mask, &frame.camera, &frame.depth, params)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
     let context = if params.support.enabled && !points.is_empty() {
-        context_points(&mask, bbox, &frame.camera, &frame.depth, &params.support).map_err(|e| anyhow::anyhow!("{e}"))?
+        context_points(&mask, bbox, &frame.camera, &frame.depth, &params.support)
+            .map_err(|e| anyhow::anyhow!("{e}"))?
     } else {
         Vec::new()
     };
-    let (points, wall_cuts) = if cut_walls { cut_wall_leaks(&points, &context, &params.support) } else { (points, Vec::new()) };
-    Ok(ViewCloud { mask, points, context, wall_cuts })
+    let (points, wall_cuts) = if cut_walls {
+        cut_wall_leaks(&points, &context, &params.support)
+    } else {
+        (points, Vec::new())
+    };
+    Ok(ViewCloud {
+        mask,
+        points,
+        context,
+        wall_cuts,
+    })
 }
 
 /// The room's box (`geometry::estimate_room`) when the target is flat against a wall and
 /// the layout prior is on: where no frame measured such an object, its pixels end on the
 /// wall. Other objects stand somewhere in front of the wall, so for them it is not made.
-pub async fn room_layout(g: &VlmGrounder, ctx: &JobContext, target_class: &str) -> Result<Option<RoomLayout>, JobFailure> {
+pub async fn room_layout(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    target_class: &str,
+) -> Result<Option<RoomLayout>, JobFailure> {
     let params = g.params.geometry.clone();
     if !params.layout.enabled || !params.support.is_flat(target_class) {
         return Ok(None);
     }
     let scene = ctx.scene.clone();
     tokio::task::spawn_blocking(move || {
-        let frames: Vec<_> = scene.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
+        let frames: Vec<_> = scene
+            .usable_frames()
+            .map(|f| (&f.camera, f.depth.as_ref()))
+            .collect();
         estimate_room(&frames, &params.layout)
     })
     .await
@@ -111,17 +157,33 @@ pub async fn room_layout(g: &VlmGrounder, ctx: &JobContext, target_class: &str) 
 /// frames (`geometry::fill_depth`) and the room's `layout`, when that is on, and what it did
 /// for the trace (null when off; the reason when the frame could not be completed, which
 /// leaves it as it was).
-fn complete_anchor_depth(scene: &crate::scene::SceneData, anchor: FrameData, bbox: [f32; 4], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
+fn complete_anchor_depth(
+    scene: &crate::scene::SceneData,
+    anchor: FrameData,
+    bbox: [f32; 4],
+    layout: Option<&RoomLayout>,
+    params: &GeometryParams,
+) -> (FrameData, serde_json::Value) {
     if !params.depth_fill.enabled {
         return (anchor, serde_json::Value::Null);
     }
-    let others: Vec<_> = scene.usable_frames().filter(|f| f.idx != anchor.idx).map(|f| (&f.camera, f.depth.as_ref())).collect();
+    let others: Vec<_> = scene
+        .usable_frames()
+        .filter(|f| f.idx != anchor.idx)
+        .map(|f| (&f.camera, f.depth.as_ref()))
+        .collect();
     complete_depth(anchor, bbox, &others, layout, params)
 }
 
 /// `frame` with the empty depth pixels inside `bbox` completed from `others` and `layout`
 /// (see [`complete_anchor_depth`]).
-fn complete_depth(mut frame: FrameData, bbox: [f32; 4], others: &[(&crate::geometry::FrameCamera, &crate::geometry::DepthMap)], layout: Option<&RoomLayout>, params: &GeometryParams) -> (FrameData, serde_json::Value) {
+fn complete_depth(
+    mut frame: FrameData,
+    bbox: [f32; 4],
+    others: &[(&crate::geometry::FrameCamera, &crate::geometry::DepthMap)],
+    layout: Option<&RoomLayout>,
+    params: &GeometryParams,
+) -> (FrameData, serde_json::Value) {
     match fill_depth(&frame.camera, &frame.depth, bbox, others, layout, params) {
         Ok((depth, stats)) => {
             if stats.filled > 0 {
@@ -134,12 +196,25 @@ fn complete_depth(mut frame: FrameData, bbox: [f32; 4], others: &[(&crate::geome
 }
 
 /// The anchor's image comes with `choice`; the ensemble views are decoded here.
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Preselection, choice: &Choice, layout: Option<RoomLayout>) -> Result<Projected, JobFailure> {
+pub async fn run(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    target_class: &str,
+    pre: &Preselection,
+    choice: &Choice,
+    layout: Option<RoomLayout>,
+) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
     let anchor = scene.frames[choice.frame_idx].clone();
-    let (seg, params, image, bbox) = (g.segmenter.clone(), g.params.geometry.clone(), choice.image.clone(), choice.bbox);
-    let cut_walls = !g.params.geometry.support.hangs(target_class) && !g.params.geometry.support.is_flat(target_class);
+    let (seg, params, image, bbox) = (
+        g.segmenter.clone(),
+        g.params.geometry.clone(),
+        choice.image.clone(),
+        choice.bbox,
+    );
+    let cut_walls = !g.params.geometry.support.hangs(target_class)
+        && !g.params.geometry.support.is_flat(target_class);
     let (sc, lay) = (scene.clone(), layout.clone());
     let (cloud, fill) = tokio::task::spawn_blocking(move || {
         // The anchor's empty depth pixels in the box, completed from the other frames.
@@ -149,10 +224,18 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     .await
     .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
     .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
-    let ViewCloud { mask: anchor_mask, points: anchor_pts, context: anchor_ctx, wall_cuts } = cloud;
+    let ViewCloud {
+        mask: anchor_mask,
+        points: anchor_pts,
+        context: anchor_ctx,
+        wall_cuts,
+    } = cloud;
     // No frame measured the object (its points were ended on the room's box): the other
     // views are found, and their depth completed, with the room too.
-    let placed = fill.get("placed").and_then(serde_json::Value::as_u64).is_some_and(|n| n > 0);
+    let placed = fill
+        .get("placed")
+        .and_then(serde_json::Value::as_u64)
+        .is_some_and(|n| n > 0);
     let view_room = layout.clone().filter(|_| placed);
     step(
         ctx,
@@ -163,16 +246,30 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     )
     .await;
     if anchor_pts.is_empty() {
-        return Err(JobFailure::new("empty_mask", "the mask has no pixel with a depth reading after clean-up"));
+        return Err(JobFailure::new(
+            "empty_mask",
+            "the mask has no pixel with a depth reading after clean-up",
+        ));
     }
 
     let tp = Instant::now();
     // Views that see the anchor points.
-    let others: Vec<usize> = scene.usable_frames().map(|f| f.idx).filter(|&i| i != choice.frame_idx).collect();
+    let others: Vec<usize> = scene
+        .usable_frames()
+        .map(|f| f.idx)
+        .filter(|&i| i != choice.frame_idx)
+        .collect();
     let params = g.params.geometry.clone();
     let (sc, ap, vr) = (scene.clone(), anchor_pts.clone(), view_room.clone());
     let views = tokio::task::spawn_blocking(move || {
-        let cands: Vec<CandidateFrame> = others.iter().map(|&i| CandidateFrame { index: i, camera: &sc.frames[i].camera, depth: &sc.frames[i].depth }).collect();
+        let cands: Vec<CandidateFrame> = others
+            .iter()
+            .map(|&i| CandidateFrame {
+                index: i,
+                camera: &sc.frames[i].camera,
+                depth: &sc.frames[i].depth,
+            })
+            .collect();
         find_views_with_room(&ap, &cands, vr.as_ref(), &params)
     })
     .await
@@ -181,27 +278,46 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
 
     // A box in each view: the cached detection of the class that best overlaps the footprint.
     let dets = match &pre.detector_class {
-        Some(_) => ctx.store.detections(&scene.id, &g.detector_key).await.map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
+        Some(_) => ctx
+            .store
+            .detections(&scene.id, &g.detector_key)
+            .await
+            .map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
         None => Default::default(),
     };
     let mut view_boxes = Vec::with_capacity(views.len());
     for v in &views {
         let best = pre.detector_class.as_ref().and_then(|c| {
-            let boxes: Vec<[f32; 4]> = dets.get(&v.index)?.iter().filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score).map(|d| d.bbox).collect();
+            let boxes: Vec<[f32; 4]> = dets
+                .get(&v.index)?
+                .iter()
+                .filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)
+                .map(|d| d.bbox)
+                .collect();
             pick_detection(&boxes, &v.pixels)
         });
         view_boxes.push((v.index, best.unwrap_or(v.bbox), best.is_some()));
     }
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
     let td = Instant::now();
-    let decoded: HashMap<usize, Arc<RgbImage>> = if idxs.is_empty() { HashMap::new() } else { super::stitching::decode(&scene, &idxs).await? };
+    let decoded: HashMap<usize, Arc<RgbImage>> = if idxs.is_empty() {
+        HashMap::new()
+    } else {
+        super::stitching::decode(&scene, &idxs).await?
+    };
     let decode_ms = ms(td);
     let views_decoded = decoded.len();
     let down = !g.params.geometry.support.hangs(target_class);
     let flat = g.params.geometry.support.is_flat(target_class);
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
     let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let (seg, params, sc, vb, room) = (g.segmenter.clone(), g.params.geometry.clone(), scene.clone(), view_boxes.clone(), layout);
+    let (seg, params, sc, vb, room) = (
+        g.segmenter.clone(),
+        g.params.geometry.clone(),
+        scene.clone(),
+        view_boxes.clone(),
+        layout,
+    );
     let anchor_idx = choice.frame_idx;
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
     let (fusion, single, support, votes, fills, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
@@ -279,7 +395,9 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, target_class: &str, pre: &Pr
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved, planar) = support.ok_or_else(|| JobFailure::new("projection_failed", "no points survived outlier removal"))?;
+    let (bbox, moved, planar) = support.ok_or_else(|| {
+        JobFailure::new("projection_failed", "no points survived outlier removal")
+    })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
     let view_json: Vec<_> = views
         .iter()
@@ -320,11 +438,16 @@ mod tests {
     #[test]
     fn detection_pick_prefers_containment_per_area() {
         // Footprint: the top strip of an object cut by the anchor frame.
-        let pixels: Vec<[u32; 2]> = (10..30).flat_map(|x| (10..14).map(move |y| [x, y])).collect();
+        let pixels: Vec<[u32; 2]> = (10..30)
+            .flat_map(|x| (10..14).map(move |y| [x, y]))
+            .collect();
         let whole = [8.0, 8.0, 32.0, 60.0]; // the whole object: holds all, IoU with the strip < 0.3
         let neighbour = [28.0, 8.0, 50.0, 30.0]; // holds a corner only
         let huge = [0.0, 0.0, 200.0, 200.0]; // holds all, but per area it loses
-        assert_eq!(pick_detection(&[neighbour, huge, whole], &pixels), Some(whole));
+        assert_eq!(
+            pick_detection(&[neighbour, huge, whole], &pixels),
+            Some(whole)
+        );
         assert_eq!(pick_detection(&[neighbour], &pixels), None);
         assert_eq!(pick_detection(&[whole], &[]), None);
     }

@@ -13,22 +13,46 @@ use crate::vlm::{CallBudget, Message};
 
 /// Lower case with runs of white space folded: the cache key.
 pub fn normalise(query: &str) -> String {
-    query.split_whitespace().collect::<Vec<_>>().join(" ").to_lowercase()
+    query
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ")
+        .to_lowercase()
 }
 
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &mut VlmLog) -> Result<QueryAnalysis, JobFailure> {
+pub async fn run(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    budget: &CallBudget,
+    log: &mut VlmLog,
+) -> Result<QueryAnalysis, JobFailure> {
     let t = Instant::now();
     let key = normalise(&ctx.query);
-    let cached = g.analysis_cache.lock().ok().and_then(|c| c.get(&key).cloned());
+    let cached = g
+        .analysis_cache
+        .lock()
+        .ok()
+        .and_then(|c| c.get(&key).cloned());
     if let Some(a) = cached {
-        step(ctx, "query_analysis", json!({"query": ctx.query}), json!({"analysis": a, "cached": true}), t).await;
+        step(
+            ctx,
+            "query_analysis",
+            json!({"query": ctx.query}),
+            json!({"analysis": a, "cached": true}),
+            t,
+        )
+        .await;
         return Ok(a);
     }
     let mut messages = vec![Message::user(g.prompts.query_analysis(&ctx.query))];
     let mut exchanges = Vec::new();
     for round in 0..=g.params.max_retries {
         let sent = VlmLog::messages_json(&messages[messages.len() - 1..], &[]);
-        let reply = g.client.chat(&messages, budget).await.map_err(vlm_failure)?;
+        let reply = g
+            .client
+            .chat(&messages, budget)
+            .await
+            .map_err(vlm_failure)?;
         let rec = log.reply(&reply);
         match parse_query_analysis(&reply.text) {
             Ok(mut a) if !a.target_class.trim().is_empty() => {
@@ -37,7 +61,14 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
                 if let Ok(mut c) = g.analysis_cache.lock() {
                     c.insert(key, a.clone());
                 }
-                step(ctx, "query_analysis", json!({"query": ctx.query}), json!({"analysis": a, "cached": false, "vlm": exchanges}), t).await;
+                step(
+                    ctx,
+                    "query_analysis",
+                    json!({"query": ctx.query}),
+                    json!({"analysis": a, "cached": false, "vlm": exchanges}),
+                    t,
+                )
+                .await;
                 return Ok(a);
             }
             outcome => {
@@ -52,8 +83,21 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, budget: &CallBudget, log: &m
             }
         }
     }
-    step(ctx, "query_analysis", json!({"query": ctx.query}), json!({"vlm": exchanges, "failed": true}), t).await;
-    Err(JobFailure::new("query_analysis_failed", format!("the VLM gave no usable query analysis in {} tries", g.params.max_retries + 1)))
+    step(
+        ctx,
+        "query_analysis",
+        json!({"query": ctx.query}),
+        json!({"vlm": exchanges, "failed": true}),
+        t,
+    )
+    .await;
+    Err(JobFailure::new(
+        "query_analysis_failed",
+        format!(
+            "the VLM gave no usable query analysis in {} tries",
+            g.params.max_retries + 1
+        ),
+    ))
 }
 
 #[cfg(test)]

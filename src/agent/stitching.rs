@@ -25,30 +25,73 @@ pub struct Grids {
 }
 
 /// Decode the colour images of `frames` at full size, in parallel (off the async runtime).
-pub async fn decode(scene: &Arc<SceneData>, frames: &[usize]) -> Result<HashMap<usize, Arc<RgbImage>>, JobFailure> {
-    let paths: Vec<_> = frames.iter().map(|&i| scene.frames[i].color_path.clone()).collect();
+pub async fn decode(
+    scene: &Arc<SceneData>,
+    frames: &[usize],
+) -> Result<HashMap<usize, Arc<RgbImage>>, JobFailure> {
+    let paths: Vec<_> = frames
+        .iter()
+        .map(|&i| scene.frames[i].color_path.clone())
+        .collect();
     let imgs = decode_paths(paths).await?;
-    Ok(frames.iter().copied().zip(imgs.into_iter().map(Arc::new)).collect())
+    Ok(frames
+        .iter()
+        .copied()
+        .zip(imgs.into_iter().map(Arc::new))
+        .collect())
 }
 
 async fn decode_paths(paths: Vec<PathBuf>) -> Result<Vec<RgbImage>, JobFailure> {
     tokio::task::spawn_blocking(move || load_frames(&paths))
         .await
         .map_err(|e| JobFailure::new("internal", format!("decoder task failed: {e}")))?
-        .map_err(|e| JobFailure::new("storage_error", format!("cannot decode a stored frame: {e:#}")))
+        .map_err(|e| {
+            JobFailure::new(
+                "storage_error",
+                format!("cannot decode a stored frame: {e:#}"),
+            )
+        })
 }
 
-pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection) -> Result<Grids, JobFailure> {
+pub async fn run(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    pre: &Preselection,
+) -> Result<Grids, JobFailure> {
     let t = Instant::now();
     let limit = g.params.image_limit;
     let mut opts = g.params.stitch.clone();
     opts.max_side = opts.max_side.min(g.client.config().max_image_side);
     let specs = plan(pre.frames.len(), limit);
-    let dims: Vec<(u32, u32)> = pre.frames.iter().map(|&i| (ctx.scene.frames[i].camera.color.width, ctx.scene.frames[i].camera.color.height)).collect();
+    let dims: Vec<(u32, u32)> = pre
+        .frames
+        .iter()
+        .map(|&i| {
+            (
+                ctx.scene.frames[i].camera.color.width,
+                ctx.scene.frames[i].camera.color.height,
+            )
+        })
+        .collect();
     let scales = tile_scales(&dims, &specs, &opts);
-    let has_preview: Vec<bool> = pre.frames.iter().map(|&i| ctx.scene.frames[i].preview_path().is_file()).collect();
+    let has_preview: Vec<bool> = pre
+        .frames
+        .iter()
+        .map(|&i| ctx.scene.frames[i].preview_path().is_file())
+        .collect();
     let from_preview = use_previews(&scales, &specs, &has_preview);
-    let paths: Vec<PathBuf> = pre.frames.iter().zip(&from_preview).map(|(&i, &p)| if p { ctx.scene.frames[i].preview_path() } else { ctx.scene.frames[i].color_path.clone() }).collect();
+    let paths: Vec<PathBuf> = pre
+        .frames
+        .iter()
+        .zip(&from_preview)
+        .map(|(&i, &p)| {
+            if p {
+                ctx.scene.frames[i].preview_path()
+            } else {
+                ctx.scene.frames[i].color_path.clone()
+            }
+        })
+        .collect();
     let decoded = decode_paths(paths).await?;
     let decode_ms = ms(t);
     let t_render = Instant::now();
@@ -63,7 +106,11 @@ pub async fn run(g: &VlmGrounder, ctx: &JobContext, pre: &Preselection) -> Resul
     let render_ms = ms(t_render);
     let mut urls = Vec::with_capacity(images.len());
     for (k, img) in images.iter().enumerate() {
-        urls.push(ctx.trace.artifact(&format!("grid_{k}.jpg"), img.jpeg.clone()).await?);
+        urls.push(
+            ctx.trace
+                .artifact(&format!("grid_{k}.jpg"), img.jpeg.clone())
+                .await?,
+        );
     }
     let grids: Vec<_> = images
         .iter()

@@ -25,7 +25,12 @@ impl VlmLog {
                     match p {
                         Part::Text(t) => texts.push(t.clone()),
                         Part::Image(_) => {
-                            images.push(image_urls.get(next).cloned().unwrap_or_else(|| "(image)".into()));
+                            images.push(
+                                image_urls
+                                    .get(next)
+                                    .cloned()
+                                    .unwrap_or_else(|| "(image)".into()),
+                            );
                             next += 1;
                         }
                     }

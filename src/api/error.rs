@@ -30,10 +30,22 @@ pub struct ApiError {
 
 impl ApiError {
     pub fn new(status: StatusCode, code: &'static str, detail: impl Into<String>) -> Self {
-        Self { status, code, detail: detail.into() }
+        Self {
+            status,
+            code,
+            detail: detail.into(),
+        }
     }
     pub fn not_found(what: &str, id: &str) -> Self {
-        Self::new(StatusCode::NOT_FOUND, if what == "scene" { "scene_not_found" } else { "job_not_found" }, format!("no {what} with id {id:?}"))
+        Self::new(
+            StatusCode::NOT_FOUND,
+            if what == "scene" {
+                "scene_not_found"
+            } else {
+                "job_not_found"
+            },
+            format!("no {what} with id {id:?}"),
+        )
     }
     pub fn bad_request(code: &'static str, detail: impl Into<String>) -> Self {
         Self::new(StatusCode::BAD_REQUEST, code, detail)
@@ -45,7 +57,11 @@ impl ApiError {
     pub fn problem(&self) -> Problem {
         Problem {
             kind: format!("/problems/{}", self.code.replace('_', "-")),
-            title: self.status.canonical_reason().unwrap_or("Error").to_string(),
+            title: self
+                .status
+                .canonical_reason()
+                .unwrap_or("Error")
+                .to_string(),
             status: self.status.as_u16(),
             detail: self.detail.clone(),
             code: self.code.to_string(),
@@ -59,7 +75,12 @@ impl IntoResponse for ApiError {
             tracing::error!(code = self.code, "{}", self.detail);
         }
         let body = serde_json::to_vec(&self.problem()).unwrap_or_default();
-        (self.status, [(header::CONTENT_TYPE, "application/problem+json")], body).into_response()
+        (
+            self.status,
+            [(header::CONTENT_TYPE, "application/problem+json")],
+            body,
+        )
+            .into_response()
     }
 }
 
@@ -75,9 +96,11 @@ impl From<SceneError> for ApiError {
             SceneError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             SceneError::NotArchive(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             SceneError::Io(_) => StatusCode::INTERNAL_SERVER_ERROR,
-            SceneError::BadImage(_) | SceneError::DepthSize(_) | SceneError::Malformed(_) | SceneError::NoFrames | SceneError::NoScene => {
-                StatusCode::UNPROCESSABLE_ENTITY
-            }
+            SceneError::BadImage(_)
+            | SceneError::DepthSize(_)
+            | SceneError::Malformed(_)
+            | SceneError::NoFrames
+            | SceneError::NoScene => StatusCode::UNPROCESSABLE_ENTITY,
             SceneError::Truncated(_) | SceneError::UnsafeArchive(_) => StatusCode::BAD_REQUEST,
         };
         ApiError::new(status, e.code(), e.to_string())

@@ -17,20 +17,36 @@ pub struct Health {
 /// The process is up.
 #[utoipa::path(get, path = "/healthz", tag = "health", responses((status = 200, body = Health)))]
 pub async fn healthz() -> axum::Json<Health> {
-    axum::Json(Health { status: "ok".into() })
+    axum::Json(Health {
+        status: "ok".into(),
+    })
 }
 
 /// The database answers and every configured model is loaded.
 #[utoipa::path(get, path = "/readyz", tag = "health", responses((status = 200, body = Health), (status = 503, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>, ApiError> {
     if !state.store.ping().await {
-        return Err(ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "database_unavailable", "the database does not answer"));
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "database_unavailable",
+            "the database does not answer",
+        ));
     }
-    let problems = state.readiness.read().map(|r| r.problems.clone()).unwrap_or_default();
+    let problems = state
+        .readiness
+        .read()
+        .map(|r| r.problems.clone())
+        .unwrap_or_default();
     if !problems.is_empty() {
-        return Err(ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "not_ready", problems.join("; ")));
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "not_ready",
+            problems.join("; "),
+        ));
     }
-    Ok(axum::Json(Health { status: "ready".into() }))
+    Ok(axum::Json(Health {
+        status: "ready".into(),
+    }))
 }
 
 /// Prometheus text format.
@@ -38,8 +54,24 @@ pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>,
 pub async fn metrics(State(state): State<AppState>) -> Result<impl IntoResponse, ApiError> {
     let counts = state.store.count_jobs_by_status().await?;
     for s in JobStatus::ALL {
-        let n = counts.iter().find(|(k, _)| k == s.as_str()).map(|(_, n)| *n).unwrap_or(0);
-        state.metrics.jobs_by_state.get_or_create(&StateLabels { state: s.as_str().into() }).set(n);
+        let n = counts
+            .iter()
+            .find(|(k, _)| k == s.as_str())
+            .map(|(_, n)| *n)
+            .unwrap_or(0);
+        state
+            .metrics
+            .jobs_by_state
+            .get_or_create(&StateLabels {
+                state: s.as_str().into(),
+            })
+            .set(n);
     }
-    Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], state.metrics.encode()))
+    Ok((
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        state.metrics.encode(),
+    ))
 }

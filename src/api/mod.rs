@@ -57,23 +57,38 @@ pub fn router(state: AppState) -> Router {
         .route("/metrics", get(health::metrics))
         .route("/openapi.yaml", get(openapi::serve_yaml))
         .fallback(fallback)
-        .layer(axum::middleware::from_fn_with_state(state.clone(), track_http))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            track_http,
+        ))
         .with_state(state)
 }
 
 async fn fallback(req: Request) -> ApiError {
-    ApiError::new(axum::http::StatusCode::NOT_FOUND, "route_not_found", format!("no route for {} {}", req.method(), req.uri().path()))
+    ApiError::new(
+        axum::http::StatusCode::NOT_FOUND,
+        "route_not_found",
+        format!("no route for {} {}", req.method(), req.uri().path()),
+    )
 }
 
 async fn track_http(State(state): State<AppState>, req: Request, next: Next) -> Response {
     let started = Instant::now();
     let method = req.method().to_string();
-    let route = req.extensions().get::<MatchedPath>().map(|m| m.as_str().to_string()).unwrap_or_else(|| "unmatched".into());
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map(|m| m.as_str().to_string())
+        .unwrap_or_else(|| "unmatched".into());
     let resp = next.run(req).await;
     state
         .metrics
         .http_duration
-        .get_or_create(&HttpLabels { method, route, status: resp.status().as_u16() })
+        .get_or_create(&HttpLabels {
+            method,
+            route,
+            status: resp.status().as_u16(),
+        })
         .observe(started.elapsed().as_secs_f64());
     resp
 }

@@ -60,7 +60,11 @@ pub async fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
     let server = match args.server.clone() {
         Some(s) => s,
         None => {
-            let mut cfg = crate::config::Config::load(&crate::config::ServeArgs { addr: Some("127.0.0.1:0".into()), data_dir: None, config: None })?;
+            let mut cfg = crate::config::Config::load(&crate::config::ServeArgs {
+                addr: Some("127.0.0.1:0".into()),
+                data_dir: None,
+                config: None,
+            })?;
             cfg.addr = "127.0.0.1:0".into();
             cfg.data_dir = args.out.join("service-data");
             let app = crate::startup::Application::build(cfg).await?;

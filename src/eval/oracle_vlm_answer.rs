@@ -385,7 +385,12 @@ mod tests {
         if let Some((pixels, bbox)) = target {
             instances.insert(7, InstanceStat { pixels, bbox });
         }
-        FrameTruth { name: String::new(), color: None, size, instances }
+        FrameTruth {
+            name: String::new(),
+            color: None,
+            size,
+            instances,
+        }
     }
 
     #[test]
@@ -402,7 +407,9 @@ mod tests {
                 frame((640, 480), None),
             ],
         };
-        assert!(scene.cut_by_border(0, 7) && !scene.cut_by_border(1, 7) && !scene.cut_by_border(3, 7));
+        assert!(
+            scene.cut_by_border(0, 7) && !scene.cut_by_border(1, 7) && !scene.cut_by_border(3, 7)
+        );
         assert_eq!(best_frame(&scene, 7, None, &[]), Some(1));
         // A cut view still wins over a much smaller whole one.
         assert_eq!(best_frame(&scene, 7, Some(&[0, 2]), &[]), Some(0));

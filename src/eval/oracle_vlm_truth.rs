@@ -63,8 +63,12 @@ impl SceneTruth {
     /// Does the image border cut `instance` in frame `image_id` (its box reaches within
     /// 0.5 % of the image size of an edge)? False when absent.
     pub fn cut_by_border(&self, image_id: u32, instance: u32) -> bool {
-        let Some(f) = self.frames.get(image_id as usize) else { return false };
-        let Some(s) = f.instances.get(&instance) else { return false };
+        let Some(f) = self.frames.get(image_id as usize) else {
+            return false;
+        };
+        let Some(s) = f.instances.get(&instance) else {
+            return false;
+        };
         let (w, h) = (f.size.0 as f32, f.size.1 as f32);
         let (mx, my) = ((0.005 * w).max(1.0), (0.005 * h).max(1.0));
         s.bbox[0] < mx || s.bbox[1] < my || s.bbox[2] > w - mx || s.bbox[3] > h - my
@@ -343,7 +347,11 @@ fn histogram(img: &image::DynamicImage) -> [f32; 64] {
 pub fn hist_distance(a: &[f32; 64], b: &[f32; 64]) -> f32 {
     let rest = |h: &[f32; 64]| h[1..].iter().sum::<f32>().max(1e-6);
     let (na, nb) = (rest(a), rest(b));
-    a[1..].iter().zip(&b[1..]).map(|(x, y)| (x / na - y / nb).abs()).sum()
+    a[1..]
+        .iter()
+        .zip(&b[1..])
+        .map(|(x, y)| (x / na - y / nb).abs())
+        .sum()
 }
 
 #[cfg(test)]

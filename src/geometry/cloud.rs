@@ -81,8 +81,15 @@ pub fn cluster_keep(points: &[Point3<f64>], voxel: f64, min_fraction: f64) -> Ve
     if voxel <= 0.0 || points.is_empty() {
         return vec![true; points.len()];
     }
-    let key = |p: &Point3<f64>| ((p.x / voxel).floor() as i64, (p.y / voxel).floor() as i64, (p.z / voxel).floor() as i64);
-    let mut cell: HashMap<(i64, i64, i64), usize, BuildHasherDefault<VoxelHasher>> = HashMap::with_capacity_and_hasher(points.len() / 4, Default::default());
+    let key = |p: &Point3<f64>| {
+        (
+            (p.x / voxel).floor() as i64,
+            (p.y / voxel).floor() as i64,
+            (p.z / voxel).floor() as i64,
+        )
+    };
+    let mut cell: HashMap<(i64, i64, i64), usize, BuildHasherDefault<VoxelHasher>> =
+        HashMap::with_capacity_and_hasher(points.len() / 4, Default::default());
     let mut counts: Vec<usize> = Vec::new();
     let point_cell: Vec<usize> = points
         .iter()
@@ -131,7 +138,10 @@ pub fn cluster_keep(points: &[Point3<f64>], voxel: f64, min_fraction: f64) -> Ve
         }
     }
     let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
-    point_cell.iter().map(|&c| sizes[label[c]] as f64 >= min_fraction * largest).collect()
+    point_cell
+        .iter()
+        .map(|&c| sizes[label[c]] as f64 >= min_fraction * largest)
+        .collect()
 }
 
 /// Evenly spaced subset of at most `max` points (every k-th point); `max == 0` keeps all.
@@ -250,7 +260,17 @@ mod tests {
 
     #[test]
     fn a_detached_cluster_is_dropped_a_large_one_stays() {
-        let block = |x0: f64, n: usize| -> Vec<Point3<f64>> { (0..n * n * n).map(|i| Point3::new(x0 + 0.02 * (i % n) as f64, 0.02 * (i / n % n) as f64, 0.02 * (i / (n * n)) as f64)).collect() };
+        let block = |x0: f64, n: usize| -> Vec<Point3<f64>> {
+            (0..n * n * n)
+                .map(|i| {
+                    Point3::new(
+                        x0 + 0.02 * (i % n) as f64,
+                        0.02 * (i / n % n) as f64,
+                        0.02 * (i / (n * n)) as f64,
+                    )
+                })
+                .collect()
+        };
         // 1000 points, 125 points 30 cm away (12.5 %), 8 points 1 m away (0.8 %).
         let mut pts = block(0.0, 10);
         pts.extend(block(0.5, 5));

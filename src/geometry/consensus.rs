@@ -92,7 +92,11 @@ impl<'a> Probe<'a> {
     /// `None` when the depth map does not fit the camera or the pose is unusable.
     pub(crate) fn new(cam: &'a FrameCamera, depth: &'a DepthMap) -> Option<Self> {
         cam.check_depth(depth).ok()?;
-        Some(Self { cam, depth, to_cam: cam.out_to_cam().ok()? })
+        Some(Self {
+            cam,
+            depth,
+            to_cam: cam.out_to_cam().ok()?,
+        })
     }
 
     fn look(&self, p: &Point3<f64>, params: &GeometryParams) -> Seen {
@@ -157,7 +161,12 @@ impl CoarseMask {
                 occupied[by * w + x / block as usize] = true;
             }
         }
-        Self { block, w, h, occupied }
+        Self {
+            block,
+            w,
+            h,
+            occupied,
+        }
     }
 
     fn covers(&self, x: u32, y: u32) -> bool {
@@ -165,7 +174,11 @@ impl CoarseMask {
         (-1..=1).any(|dy| {
             (-1..=1).any(|dx| {
                 let (nx, ny) = (bx + dx, by + dy);
-                nx >= 0 && ny >= 0 && (nx as usize) < self.w && (ny as usize) < self.h && self.occupied[ny as usize * self.w + nx as usize]
+                nx >= 0
+                    && ny >= 0
+                    && (nx as usize) < self.w
+                    && (ny as usize) < self.h
+                    && self.occupied[ny as usize * self.w + nx as usize]
             })
         })
     }
@@ -173,12 +186,24 @@ impl CoarseMask {
 
 /// Mask consensus. `clouds[i]` are the points back-projected from `views[i]`'s mask.
 /// Returns, per cloud, which points to keep (see the module documentation).
-pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &GeometryParams) -> Vec<Vec<bool>> {
+pub fn mask_votes(
+    clouds: &[&[Point3<f64>]],
+    views: &[MaskView<'_>],
+    params: &GeometryParams,
+) -> Vec<Vec<bool>> {
     let coarse: Vec<CoarseMask> = views
         .iter()
-        .map(|v| CoarseMask::new(v.mask, scaled_kernel(params, params.consensus.mask_dilate, v.mask.width) / 2))
+        .map(|v| {
+            CoarseMask::new(
+                v.mask,
+                scaled_kernel(params, params.consensus.mask_dilate, v.mask.width) / 2,
+            )
+        })
         .collect();
-    let probes: Vec<Option<Probe<'_>>> = views.iter().map(|v| Probe::new(v.camera, v.depth)).collect();
+    let probes: Vec<Option<Probe<'_>>> = views
+        .iter()
+        .map(|v| Probe::new(v.camera, v.depth))
+        .collect();
     clouds
         .iter()
         .enumerate()
@@ -187,10 +212,14 @@ pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &Ge
                 .map(|p| {
                     let (mut pro, mut con) = (0usize, 0usize);
                     for (k, probe) in probes.iter().enumerate() {
-                        let Some(probe) = probe.as_ref().filter(|_| k != own) else { continue };
+                        let Some(probe) = probe.as_ref().filter(|_| k != own) else {
+                            continue;
+                        };
                         match probe.look(p, params) {
                             Seen::OnSurface(x, y) if coarse[k].covers(x, y) => pro += 1,
-                            Seen::OnSurface(..) if k == 0 && params.consensus.anchor_veto => return false,
+                            Seen::OnSurface(..) if k == 0 && params.consensus.anchor_veto => {
+                                return false
+                            }
                             Seen::OnSurface(..) | Seen::Through => con += 1,
                             Seen::Nothing => {}
                         }
@@ -205,11 +234,19 @@ pub fn mask_votes(clouds: &[&[Point3<f64>]], views: &[MaskView<'_>], params: &Ge
 /// Free-space carving of `points` with the frames in `frames` (camera, depth). Frames that
 /// cannot see the points' box at all are skipped up front, and at most
 /// `consensus.max_carve_frames` of the rest are used. Returns which points to keep.
-pub fn free_space_votes(points: &[Point3<f64>], frames: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> Vec<bool> {
+pub fn free_space_votes(
+    points: &[Point3<f64>],
+    frames: &[(&FrameCamera, &DepthMap)],
+    params: &GeometryParams,
+) -> Vec<bool> {
     let Some(bbox) = Aabb::from_points(points) else {
         return Vec::new();
     };
-    let mut probes: Vec<Probe<'_>> = frames.iter().filter_map(|(c, d)| Probe::new(c, d)).filter(|p| sees_box(p, &bbox)).collect();
+    let mut probes: Vec<Probe<'_>> = frames
+        .iter()
+        .filter_map(|(c, d)| Probe::new(c, d))
+        .filter(|p| sees_box(p, &bbox))
+        .collect();
     let cap = params.consensus.max_carve_frames;
     if cap > 0 && probes.len() > cap {
         let n = probes.len();
@@ -263,12 +300,22 @@ fn sees_box(p: &Probe<'_>, b: &Aabb) -> bool {
 
 /// `kernel` (pixels at the reference width) scaled to a mask `width` pixels wide, odd.
 fn scaled_kernel(params: &GeometryParams, kernel: u32, width: u32) -> u32 {
-    GeometryParams { erode_kernel: kernel, erode_reference_width: params.erode_reference_width, ..GeometryParams::default() }.erode_kernel_for(width)
+    GeometryParams {
+        erode_kernel: kernel,
+        erode_reference_width: params.erode_reference_width,
+        ..GeometryParams::default()
+    }
+    .erode_kernel_for(width)
 }
 
 /// Keep the points whose flag is true.
 pub fn retain(points: &[Point3<f64>], keep: &[bool]) -> Vec<Point3<f64>> {
-    points.iter().zip(keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect()
+    points
+        .iter()
+        .zip(keep)
+        .filter(|(_, &k)| k)
+        .map(|(p, _)| *p)
+        .collect()
 }
 
 #[cfg(test)]
@@ -280,8 +327,21 @@ mod tests {
 
     /// 80x60 camera at `eye` looking at `target`, depth = colour size.
     fn cam(eye: Point3<f64>, target: Point3<f64>) -> FrameCamera {
-        let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
-        FrameCamera { color, depth: None, depth_size: (80, 60), pose: look_at_pose(eye, target, Vector3::z()), align: Matrix4::identity() }
+        let color = Intrinsics {
+            fx: 60.0,
+            fy: 60.0,
+            cx: 39.5,
+            cy: 29.5,
+            width: 80,
+            height: 60,
+        };
+        FrameCamera {
+            color,
+            depth: None,
+            depth_size: (80, 60),
+            pose: look_at_pose(eye, target, Vector3::z()),
+            align: Matrix4::identity(),
+        }
     }
 
     /// Depth image of the plane y = `wall` and an optional cube [x0,x1]x[y0,y1]x[0,1] seen by `c`, by ray casting.
@@ -293,11 +353,19 @@ mod tests {
             for x in 0..80 {
                 let pc = c.color.unproject(x as f64, y as f64, 1.0);
                 let dir = transform_point(&to_out, &pc) - eye; // camera z = 1 along this ray
-                let mut t_hit = if dir.y > 1e-9 { (wall - eye.y) / dir.y } else { f64::INFINITY };
+                let mut t_hit = if dir.y > 1e-9 {
+                    (wall - eye.y) / dir.y
+                } else {
+                    f64::INFINITY
+                };
                 if let Some(([x0, x1], [y0, y1])) = cube {
                     // slab test
                     let (mut lo, mut hi) = (0.0f64, f64::INFINITY);
-                    for (o, d, a, b) in [(eye.x, dir.x, x0, x1), (eye.y, dir.y, y0, y1), (eye.z, dir.z, 0.0, 1.0)] {
+                    for (o, d, a, b) in [
+                        (eye.x, dir.x, x0, x1),
+                        (eye.y, dir.y, y0, y1),
+                        (eye.z, dir.z, 0.0, 1.0),
+                    ] {
                         if d.abs() < 1e-12 {
                             if o < a || o > b {
                                 hi = -1.0;
@@ -361,7 +429,16 @@ mod tests {
                 m
             })
             .collect();
-        let views: Vec<MaskView> = cams.iter().zip(&depths).zip(&masks).map(|((c, d), m)| MaskView { camera: c, depth: d, mask: m }).collect();
+        let views: Vec<MaskView> = cams
+            .iter()
+            .zip(&depths)
+            .zip(&masks)
+            .map(|((c, d), m)| MaskView {
+                camera: c,
+                depth: d,
+                mask: m,
+            })
+            .collect();
         let p = GeometryParams::default();
         // View 0's cloud: a cube point, and a wall point its leaking mask let in.
         let leak = Point3::new(1.0, 3.0, 0.5);
@@ -370,16 +447,45 @@ mod tests {
         assert_eq!(keep[0], vec![true, false]);
         // With the other views' masks covering everything, the leak stays.
         let full = Mask::from_box(80, 60, [0.0, 0.0, 80.0, 60.0]);
-        let lax: Vec<MaskView> = views.iter().enumerate().map(|(i, v)| MaskView { mask: if i == 0 { v.mask } else { &full }, ..*v }).collect();
-        assert_eq!(mask_votes(&[&cloud0, &[], &[]], &lax, &p)[0], vec![true, true]);
+        let lax: Vec<MaskView> = views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| MaskView {
+                mask: if i == 0 { v.mask } else { &full },
+                ..*v
+            })
+            .collect();
+        assert_eq!(
+            mask_votes(&[&cloud0, &[], &[]], &lax, &p)[0],
+            vec![true, true]
+        );
         assert_eq!(retain(&cloud0, &[true, false]), vec![cloud0[0]]);
 
         // A wall point in view 1's cloud, seen by the anchor (view 0, cube mask: against) and
         // view 2 (a mask covering everything: for). A tie keeps it, unless the anchor overrules.
-        let tie: Vec<MaskView> = views.iter().enumerate().map(|(i, v)| MaskView { mask: if i == 2 { &full } else { v.mask }, ..*v }).collect();
+        let tie: Vec<MaskView> = views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| MaskView {
+                mask: if i == 2 { &full } else { v.mask },
+                ..*v
+            })
+            .collect();
         let cloud1 = [Point3::new(0.0, 1.0, 0.5), Point3::new(-1.0, 3.0, 0.5)];
-        let lenient = GeometryParams { consensus: ConsensusParams { anchor_veto: false, ..Default::default() }, ..p.clone() };
-        assert_eq!(mask_votes(&[&[], &cloud1, &[]], &tie, &lenient)[1], vec![true, true]);
-        assert_eq!(mask_votes(&[&[], &cloud1, &[]], &tie, &p)[1], vec![true, false]);
+        let lenient = GeometryParams {
+            consensus: ConsensusParams {
+                anchor_veto: false,
+                ..Default::default()
+            },
+            ..p.clone()
+        };
+        assert_eq!(
+            mask_votes(&[&[], &cloud1, &[]], &tie, &lenient)[1],
+            vec![true, true]
+        );
+        assert_eq!(
+            mask_votes(&[&[], &cloud1, &[]], &tie, &p)[1],
+            vec![true, false]
+        );
     }
 }

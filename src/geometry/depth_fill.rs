@@ -51,7 +51,17 @@ pub struct DepthFillParams {
 
 impl Default for DepthFillParams {
     fn default() -> Self {
-        Self { enabled: true, min_missing_fraction: 0.1, max_rays: 1500, near: 0.3, far: 12.0, step: 0.01, min_votes: 2, tol_abs: 0.02, tol_rel: 0.01 }
+        Self {
+            enabled: true,
+            min_missing_fraction: 0.1,
+            max_rays: 1500,
+            near: 0.3,
+            far: 12.0,
+            step: 0.01,
+            min_votes: 2,
+            tol_abs: 0.02,
+            tol_rel: 0.01,
+        }
     }
 }
 
@@ -94,14 +104,22 @@ pub fn fill_depth(
     let mut stats = DepthFillStats::default();
     let w = depth.width as usize;
     for y in y0..y1 {
-        stats.missing += (x0..x1).filter(|&x| depth.data[y as usize * w + x as usize] == 0).count();
+        stats.missing += (x0..x1)
+            .filter(|&x| depth.data[y as usize * w + x as usize] == 0)
+            .count();
     }
     let area = (x1 - x0) as f64 * (y1 - y0) as f64;
     if stats.missing == 0 || (stats.missing as f64) < fp.min_missing_fraction * area {
         return Ok((out, stats));
     }
-    let views: Vec<Probe> = others.iter().filter_map(|&(c, d)| Probe::new(c, d)).collect();
-    let cell = ((stats.missing as f64 / fp.max_rays.max(1) as f64).sqrt().ceil() as u32).max(1);
+    let views: Vec<Probe> = others
+        .iter()
+        .filter_map(|&(c, d)| Probe::new(c, d))
+        .collect();
+    let cell = ((stats.missing as f64 / fp.max_rays.max(1) as f64)
+        .sqrt()
+        .ceil() as u32)
+        .max(1);
     stats.cell = cell;
     let samples = depth_samples(fp.near, fp.far, fp.step);
     // The cells' empty pixels, then one ray per cell (in parallel: rays are independent).
@@ -109,7 +127,10 @@ pub fn fill_depth(
     for cy in (y0..y1).step_by(cell as usize) {
         for cx in (x0..x1).step_by(cell as usize) {
             let (ex, ey) = ((cx + cell).min(x1), (cy + cell).min(y1));
-            let empty: Vec<(u32, u32)> = (cy..ey).flat_map(|y| (cx..ex).map(move |x| (x, y))).filter(|&(x, y)| depth.get(x, y) == 0).collect();
+            let empty: Vec<(u32, u32)> = (cy..ey)
+                .flat_map(|y| (cx..ex).map(move |x| (x, y)))
+                .filter(|&(x, y)| depth.get(x, y) == 0)
+                .collect();
             if !empty.is_empty() {
                 cells.push(empty);
             }
@@ -121,13 +142,23 @@ pub fn fill_depth(
             // The ray through the centroid of the cell's empty pixels (not the cell's centre,
             // which at an object's outline may lie on the measured side), in colour pixels.
             let n = empty.len() as f64;
-            let (mx, my) = empty.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x as f64 / n, b + y as f64 / n));
+            let (mx, my) = empty.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
+                (a + x as f64 / n, b + y as f64 / n)
+            });
             let (u, v) = color_pixel(cam, mx, my);
-            (cast(cam, &cam_to_out, u, v, &samples, &views, params), (u, v))
+            (
+                cast(cam, &cam_to_out, u, v, &samples, &views, params),
+                (u, v),
+            )
         })
         .collect();
     // Rays nothing met, ended on the room's box when the region is mostly unmeasured.
-    let voted: usize = cells.iter().zip(&depths).filter(|(_, d)| d.0.is_some()).map(|(c, _)| c.len()).sum();
+    let voted: usize = cells
+        .iter()
+        .zip(&depths)
+        .filter(|(_, d)| d.0.is_some())
+        .map(|(c, _)| c.len())
+        .sum();
     let measured = (area - stats.missing as f64 + voted as f64) / area.max(1.0);
     let room = layout.filter(|_| measured < params.layout.max_measured);
     let depths: Vec<Option<(f64, bool)>> = depths
@@ -154,7 +185,9 @@ pub fn fill_depth(
             let z = match room.filter(|_| placed) {
                 Some(room) => {
                     let (u, v) = color_pixel(cam, x as f64, y as f64);
-                    room.exit_depth(cam, &cam_to_out, u, v).filter(|e| room.beyond_range(*e, &params.layout) && *e <= fp.far).unwrap_or(z)
+                    room.exit_depth(cam, &cam_to_out, u, v)
+                        .filter(|e| room.beyond_range(*e, &params.layout) && *e <= fp.far)
+                        .unwrap_or(z)
                 }
                 None => z,
             };
@@ -168,15 +201,22 @@ pub fn fill_depth(
 /// The depth-pixel rectangle `[x0, x1) x [y0, y1)` under a colour box, clamped.
 fn depth_rect(cam: &FrameCamera, b: [f32; 4]) -> (u32, u32, u32, u32) {
     let (a0, a1) = cam.depth_lookup_pixel(b[0].max(0.0) as f64, b[1].max(0.0) as f64);
-    let (c0, c1) = cam.depth_lookup_pixel((b[2] as f64 - 1.0).max(0.0), (b[3] as f64 - 1.0).max(0.0));
+    let (c0, c1) =
+        cam.depth_lookup_pixel((b[2] as f64 - 1.0).max(0.0), (b[3] as f64 - 1.0).max(0.0));
     (a0, a1, (c0 + 1).max(a0), (c1 + 1).max(a1))
 }
 
 /// The colour pixel that reads depth pixel (x, y) (the inverse of `depth_lookup_pixel`).
 pub(crate) fn color_pixel(cam: &FrameCamera, x: f64, y: f64) -> (f64, f64) {
     match &cam.depth {
-        Some(d) => ((x - d.cx) / d.fx * cam.color.fx + cam.color.cx, (y - d.cy) / d.fy * cam.color.fy + cam.color.cy),
-        None => (x * cam.color.width as f64 / cam.depth_size.0 as f64, y * cam.color.height as f64 / cam.depth_size.1 as f64),
+        Some(d) => (
+            (x - d.cx) / d.fx * cam.color.fx + cam.color.cx,
+            (y - d.cy) / d.fy * cam.color.fy + cam.color.cy,
+        ),
+        None => (
+            x * cam.color.width as f64 / cam.depth_size.0 as f64,
+            y * cam.color.height as f64 / cam.depth_size.1 as f64,
+        ),
     }
 }
 
@@ -191,13 +231,26 @@ fn depth_samples(near: f64, far: f64, step: f64) -> Vec<f64> {
 }
 
 /// Depth along the ray through colour pixel (u, v) at which other views agree on a surface.
-fn cast(cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64, samples: &[f64], views: &[Probe], params: &GeometryParams) -> Option<f64> {
+fn cast(
+    cam: &FrameCamera,
+    cam_to_out: &Matrix4<f64>,
+    u: f64,
+    v: f64,
+    samples: &[f64],
+    views: &[Probe],
+    params: &GeometryParams,
+) -> Option<f64> {
     let fp = &params.depth_fill;
-    let (Some(&near), Some(&far)) = (samples.first(), samples.last()) else { return None };
+    let (Some(&near), Some(&far)) = (samples.first(), samples.last()) else {
+        return None;
+    };
     let at = |z: f64| transform_point(cam_to_out, &cam.color.unproject(u, v, z));
     let (pn, pf) = (at(near), at(far));
     // Only the views the ray's segment can appear in.
-    let seen: Vec<&Probe> = views.iter().filter(|vw| segment_may_be_seen(vw, &pn, &pf)).collect();
+    let seen: Vec<&Probe> = views
+        .iter()
+        .filter(|vw| segment_may_be_seen(vw, &pn, &pf))
+        .collect();
     if seen.len() < fp.min_votes {
         return None;
     }
@@ -206,7 +259,9 @@ fn cast(cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64, samples: &
         let p = at(z);
         let (mut surface, mut free) = (0usize, 0usize);
         for vw in &seen {
-            let Some(pr) = project_one(&p, &vw.to_cam, vw.cam, vw.depth, params) else { continue };
+            let Some(pr) = project_one(&p, &vw.to_cam, vw.cam, vw.depth, params) else {
+                continue;
+            };
             match pr.measured {
                 Some(d) if (d - pr.z).abs() <= fp.tol_abs + fp.tol_rel * pr.z => surface += 1,
                 Some(d) if d > pr.z => free += 1,
@@ -226,7 +281,10 @@ fn cast(cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64, samples: &
 /// False when the segment from `a` to `b` is certainly outside the view's image: both ends
 /// behind the camera, or both in front and their pixel box misses the image.
 fn segment_may_be_seen(vw: &Probe, a: &Point3<f64>, b: &Point3<f64>) -> bool {
-    let (ca, cb) = (transform_point(&vw.to_cam, a), transform_point(&vw.to_cam, b));
+    let (ca, cb) = (
+        transform_point(&vw.to_cam, a),
+        transform_point(&vw.to_cam, b),
+    );
     match (vw.cam.color.project(&ca), vw.cam.color.project(&cb)) {
         (None, None) => false,
         (Some((ua, va, _)), Some((ub, vb, _))) => {

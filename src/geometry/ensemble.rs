@@ -6,7 +6,8 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    chamfer_distance, cluster_keep, neighbour_mean_distances, remove_statistical_outliers, subsample_even, voxel_downsample,
+    chamfer_distance, cluster_keep, neighbour_mean_distances, remove_statistical_outliers,
+    subsample_even, voxel_downsample,
 };
 use super::projection::{project_points, Projected, ProjectionError};
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask, RoomLayout};
@@ -81,9 +82,14 @@ pub fn find_views_with_room(
             let (w, h) = (c.camera.color.width, c.camera.color.height);
             let cam_to_out = c.camera.cam_to_out();
             let on_room = |q: &Projected| {
-                let Some(room) = room.filter(|_| q.inside && q.measured.is_none()) else { return false };
+                let Some(room) = room.filter(|_| q.inside && q.measured.is_none()) else {
+                    return false;
+                };
                 room.exit_depth(c.camera, &cam_to_out, q.u, q.v)
-                    .is_some_and(|e| room.beyond_range(e, &params.layout) && (e - q.z).abs() <= params.visibility_tolerance(q.z))
+                    .is_some_and(|e| {
+                        room.beyond_range(e, &params.layout)
+                            && (e - q.z).abs() <= params.visibility_tolerance(q.z)
+                    })
             };
             let mut seen = vec![false; w as usize * h as usize];
             let mut pixels = Vec::new();
@@ -165,19 +171,35 @@ pub fn fuse_views(
 ) -> FusionResult {
     let views = chamfer_decisions(anchor, others, params);
     let mut clouds: Vec<&[Point3<f64>]> = vec![anchor];
-    clouds.extend(others.iter().zip(&views).filter(|(_, d)| d.kept).map(|((_, p), _)| p.as_slice()));
+    clouds.extend(
+        others
+            .iter()
+            .zip(&views)
+            .filter(|(_, d)| d.kept)
+            .map(|((_, p), _)| p.as_slice()),
+    );
     fuse_clouds(anchor.len(), &clouds, views, None, params)
 }
 
 /// Step 1 of [`fuse_views`]: the chamfer distance of each view to the anchor, both clouds
 /// voxel-downsampled by `params.chamfer_voxel`, and whether it passes the threshold.
-pub fn chamfer_decisions(anchor: &[Point3<f64>], others: &[(usize, Vec<Point3<f64>>)], params: &GeometryParams) -> Vec<ViewDecision> {
+pub fn chamfer_decisions(
+    anchor: &[Point3<f64>],
+    others: &[(usize, Vec<Point3<f64>>)],
+    params: &GeometryParams,
+) -> Vec<ViewDecision> {
     let anchor_ds = voxel_downsample(anchor, params.chamfer_voxel);
     others
         .iter()
         .map(|(index, pts)| {
-            let chamfer = chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
-            ViewDecision { index: *index, chamfer, kept: chamfer.is_some_and(|c| c <= params.chamfer_threshold), points: pts.len() }
+            let chamfer =
+                chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
+            ViewDecision {
+                index: *index,
+                chamfer,
+                kept: chamfer.is_some_and(|c| c <= params.chamfer_threshold),
+                points: pts.len(),
+            }
         })
         .collect()
 }
@@ -188,7 +210,13 @@ pub type Carve<'a> = &'a (dyn Fn(&[Point3<f64>]) -> Vec<bool> + Sync);
 /// Steps 2-4 of [`fuse_views`] on the clouds to fuse (the anchor's and the kept views'):
 /// union, voxel downsampling, then `carve` (when given) drops points before outlier
 /// removal and the box.
-pub fn fuse_clouds(anchor_points: usize, clouds: &[&[Point3<f64>]], views: Vec<ViewDecision>, carve: Option<Carve<'_>>, params: &GeometryParams) -> FusionResult {
+pub fn fuse_clouds(
+    anchor_points: usize,
+    clouds: &[&[Point3<f64>]],
+    views: Vec<ViewDecision>,
+    carve: Option<Carve<'_>>,
+    params: &GeometryParams,
+) -> FusionResult {
     let union: Vec<Point3<f64>> = clouds.iter().flat_map(|c| c.iter().copied()).collect();
     let mut voxel = params.fusion_voxel;
     let mut fused = voxel_downsample(&union, voxel);
@@ -236,10 +264,17 @@ fn drop_detached(points: Vec<Point3<f64>>, params: &GeometryParams) -> Vec<Point
     if params.cluster_voxel <= 0.0 || points.len() < 10 {
         return points;
     }
-    let mut d: Vec<f64> = neighbour_mean_distances(&points, params.sor_neighbors.max(2)).into_iter().filter(|d| *d >= 0.0).collect();
+    let mut d: Vec<f64> = neighbour_mean_distances(&points, params.sor_neighbors.max(2))
+        .into_iter()
+        .filter(|d| *d >= 0.0)
+        .collect();
     d.sort_by(f64::total_cmp);
     let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
-    let keep = cluster_keep(&points, params.cluster_voxel.max(3.0 * spacing), params.min_cluster_fraction);
+    let keep = cluster_keep(
+        &points,
+        params.cluster_voxel.max(3.0 * spacing),
+        params.min_cluster_fraction,
+    );
     super::consensus::retain(&points, &keep)
 }
 
@@ -268,7 +303,11 @@ pub fn trimmed_box(points: &[Point3<f64>], trim: f64) -> Option<Aabb> {
 /// the min–max extent measures the noise, not the object. There the
 /// box is narrowed to the points' interquartile range; support completion then carries
 /// the back face to the wall or floor. `max_iqr` 0 disables it.
-pub fn flatten_noisy_planes(b: Aabb, points: &[Point3<f64>], max_iqr: f64) -> (Aabb, Vec<&'static str>) {
+pub fn flatten_noisy_planes(
+    b: Aabb,
+    points: &[Point3<f64>],
+    max_iqr: f64,
+) -> (Aabb, Vec<&'static str>) {
     const NAMES: [&str; 3] = ["x", "y", "z"];
     let mut out = b;
     let mut axes = Vec::new();
@@ -288,7 +327,13 @@ pub fn flatten_noisy_planes(b: Aabb, points: &[Point3<f64>], max_iqr: f64) -> (A
         let iqr = qs[a].1 - qs[a].0;
         let others = [(a + 1) % 3, (a + 2) % 3];
         let extent = b.max[a] - b.min[a];
-        if iqr <= max_iqr && extent <= 8.0 * iqr.max(0.005) && iqr < extent && others.iter().all(|&o| qs[o].1 - qs[o].0 >= 4.0 * iqr.max(0.005)) {
+        if iqr <= max_iqr
+            && extent <= 8.0 * iqr.max(0.005)
+            && iqr < extent
+            && others
+                .iter()
+                .all(|&o| qs[o].1 - qs[o].0 >= 4.0 * iqr.max(0.005))
+        {
             out.min[a] = qs[a].0;
             out.max[a] = qs[a].1;
             axes.push(NAMES[a]);
@@ -333,7 +378,15 @@ mod tests {
     fn a_trimmed_box_lets_out_a_few_stray_points_per_side() {
         // 1000 points filling [0, 1]^3 on a 10^3 grid, plus 5 strays beyond x = 1 and one
         // far below z = 0.
-        let mut pts: Vec<Point3<f64>> = (0..1000).map(|i| Point3::new((i % 10) as f64 / 9.0, (i / 10 % 10) as f64 / 9.0, (i / 100) as f64 / 9.0)).collect();
+        let mut pts: Vec<Point3<f64>> = (0..1000)
+            .map(|i| {
+                Point3::new(
+                    (i % 10) as f64 / 9.0,
+                    (i / 10 % 10) as f64 / 9.0,
+                    (i / 100) as f64 / 9.0,
+                )
+            })
+            .collect();
         pts.extend((0..5).map(|k| Point3::new(1.1 + 0.1 * k as f64, 0.5, 0.5)));
         pts.push(Point3::new(0.5, 0.5, -3.0));
         let plain = trimmed_box(&pts, 0.0).unwrap();
@@ -347,11 +400,16 @@ mod tests {
     #[test]
     fn a_noisy_window_is_flattened_a_pillow_is_not() {
         // Window face at y = 6.05, blurred by ~2.5 cm of deterministic pseudo-noise.
-        let noise = |k: usize| 0.05 * ((k as f64 * 12.9898).sin() * 43758.5453).fract().abs() - 0.025;
+        let noise =
+            |k: usize| 0.05 * ((k as f64 * 12.9898).sin() * 43758.5453).fract().abs() - 0.025;
         let mut window = Vec::new();
         for i in 0..40 {
             for j in 0..40 {
-                window.push(Point3::new(0.7 + 0.03 * i as f64, 6.05 + noise(i * 40 + j), 1.0 + 0.03 * j as f64));
+                window.push(Point3::new(
+                    0.7 + 0.03 * i as f64,
+                    6.05 + noise(i * 40 + j),
+                    1.0 + 0.03 * j as f64,
+                ));
             }
         }
         let b = Aabb::from_points(&window).unwrap();
@@ -361,10 +419,17 @@ mod tests {
         assert!(f.min[1] < 6.05 && f.max[1] > 6.05);
         assert_eq!((f.min[0], f.max[2]), (b.min[0], b.max[2]));
         // A pillow: mostly its front face, plus its top 0.3 m deep: a second surface.
-        let mut pillow: Vec<Point3<f64>> = window.iter().map(|p| Point3::new(p.x, 4.75, p.z * 0.2)).collect();
+        let mut pillow: Vec<Point3<f64>> = window
+            .iter()
+            .map(|p| Point3::new(p.x, 4.75, p.z * 0.2))
+            .collect();
         for i in 0..40 {
             for j in 0..8 {
-                pillow.push(Point3::new(0.7 + 0.03 * i as f64, 4.75 + 0.04 * j as f64, 0.44));
+                pillow.push(Point3::new(
+                    0.7 + 0.03 * i as f64,
+                    4.75 + 0.04 * j as f64,
+                    0.44,
+                ));
             }
         }
         let b = Aabb::from_points(&pillow).unwrap();
@@ -409,9 +474,26 @@ mod tests {
         use crate::geometry::camera::look_at_pose;
         use crate::geometry::Intrinsics;
         use nalgebra::{Matrix4, Vector3};
-        let color = Intrinsics { fx: 100.0, fy: 100.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
-        let pose = look_at_pose(Point3::new(0.0, -2.0, 1.0), Point3::new(0.0, 0.0, 1.0), Vector3::z());
-        let cam = FrameCamera { color, depth: None, depth_size: (80, 60), pose, align: Matrix4::identity() };
+        let color = Intrinsics {
+            fx: 100.0,
+            fy: 100.0,
+            cx: 39.5,
+            cy: 29.5,
+            width: 80,
+            height: 60,
+        };
+        let pose = look_at_pose(
+            Point3::new(0.0, -2.0, 1.0),
+            Point3::new(0.0, 0.0, 1.0),
+            Vector3::z(),
+        );
+        let cam = FrameCamera {
+            color,
+            depth: None,
+            depth_size: (80, 60),
+            pose,
+            align: Matrix4::identity(),
+        };
         let depth = DepthMap::new(80, 60, vec![2000; 80 * 60]);
         // A 5-pixel-wide stripe: a fixed 15x15 erosion deletes it, a 3x3 one keeps its core.
         let mut stripe = Mask::new(80, 60);
@@ -420,7 +502,10 @@ mod tests {
                 stripe.set(x, y, true);
             }
         }
-        let p = GeometryParams { erode_reference_width: 0, ..GeometryParams::default() };
+        let p = GeometryParams {
+            erode_reference_width: 0,
+            ..GeometryParams::default()
+        };
         assert_eq!(crate::geometry::postprocess_mask(&stripe, 15, 2).count(), 0);
         let pts = mask_points(&stripe, &cam, &depth, &p).unwrap_or_default();
         // 3x3 erosion: 3 columns x 38 rows survive.
@@ -432,9 +517,16 @@ mod tests {
                 square.set(x, y, true);
             }
         }
-        assert_eq!(mask_points(&square, &cam, &depth, &p).map(|v| v.len()).unwrap_or(0), 16 * 16);
+        assert_eq!(
+            mask_points(&square, &cam, &depth, &p)
+                .map(|v| v.len())
+                .unwrap_or(0),
+            16 * 16
+        );
         // Nothing to find: an empty mask stays empty.
-        assert!(mask_points(&Mask::new(80, 60), &cam, &depth, &p).unwrap_or_default().is_empty());
+        assert!(mask_points(&Mask::new(80, 60), &cam, &depth, &p)
+            .unwrap_or_default()
+            .is_empty());
     }
 
     #[test]

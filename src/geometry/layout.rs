@@ -82,11 +82,35 @@ impl Default for LayoutParams {
     fn default() -> Self {
         // Framed pictures and boards are a few centimetres deep; doors and windows keep
         // `flat_depth`.
-        let class_depth = [("picture", 0.03), ("painting", 0.03), ("poster", 0.01), ("photo", 0.02), ("frame", 0.03), ("mirror", 0.03), ("whiteboard", 0.02), ("blackboard", 0.02), ("board", 0.02), ("sign", 0.01)]
-            .into_iter()
-            .map(|(c, d)| (c.to_string(), d))
-            .collect();
-        Self { enabled: true, sample_step: 8, max_points: 60_000, bin: 0.02, min_points: 40, min_spread: 1.0, range_quantile: 0.999, max_measured: 0.5, range_margin: 0.3, end_frames: 2, flat_depth: 0.05, class_depth }
+        let class_depth = [
+            ("picture", 0.03),
+            ("painting", 0.03),
+            ("poster", 0.01),
+            ("photo", 0.02),
+            ("frame", 0.03),
+            ("mirror", 0.03),
+            ("whiteboard", 0.02),
+            ("blackboard", 0.02),
+            ("board", 0.02),
+            ("sign", 0.01),
+        ]
+        .into_iter()
+        .map(|(c, d)| (c.to_string(), d))
+        .collect();
+        Self {
+            enabled: true,
+            sample_step: 8,
+            max_points: 60_000,
+            bin: 0.02,
+            min_points: 40,
+            min_spread: 1.0,
+            range_quantile: 0.999,
+            max_measured: 0.5,
+            range_margin: 0.3,
+            end_frames: 2,
+            flat_depth: 0.05,
+            class_depth,
+        }
     }
 }
 
@@ -125,14 +149,24 @@ struct Sample {
 /// neighbour is missing or lies across a depth edge are left out). Also each block's
 /// largest reading, and the camera centre. Medians and a block-wide baseline keep the
 /// normals usable at the sensor's far end, where single readings are centimetres off.
-fn sample_frame(cam: &FrameCamera, depth: &DepthMap, step: u32, frame: usize, out: &mut Vec<Sample>, readings: &mut Vec<f64>) -> Option<Point3<f64>> {
+fn sample_frame(
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    step: u32,
+    frame: usize,
+    out: &mut Vec<Sample>,
+    readings: &mut Vec<f64>,
+) -> Option<Point3<f64>> {
     cam.check_depth(depth).ok()?;
     let m = cam.cam_to_out();
     if !is_finite_matrix(&m) {
         return None;
     }
     let step = step.max(1);
-    let (bw, bh) = ((depth.width / step) as usize, (depth.height / step) as usize);
+    let (bw, bh) = (
+        (depth.width / step) as usize,
+        (depth.height / step) as usize,
+    );
     let mut grid: Vec<Option<(f64, Point3<f64>)>> = vec![None; bw * bh];
     let mut block = Vec::with_capacity((step * step) as usize);
     for by in 0..bh {
@@ -148,7 +182,11 @@ fn sample_frame(cam: &FrameCamera, depth: &DepthMap, step: u32, frame: usize, ou
             let mid = block.len() / 2;
             let z = f64::from(*block.select_nth_unstable(mid).1) / 1000.0;
             readings.push(f64::from(block.iter().copied().max().unwrap_or(0)) / 1000.0);
-            let (u, v) = super::depth_fill::color_pixel(cam, f64::from(x0) + f64::from(step) / 2.0 - 0.5, f64::from(y0) + f64::from(step) / 2.0 - 0.5);
+            let (u, v) = super::depth_fill::color_pixel(
+                cam,
+                f64::from(x0) + f64::from(step) / 2.0 - 0.5,
+                f64::from(y0) + f64::from(step) / 2.0 - 0.5,
+            );
             grid[by * bw + bx] = Some((z, transform_point(&m, &cam.color.unproject(u, v, z))));
         }
     }
@@ -156,7 +194,11 @@ fn sample_frame(cam: &FrameCamera, depth: &DepthMap, step: u32, frame: usize, ou
     for y in 1..bh.saturating_sub(1) {
         for x in 1..bw.saturating_sub(1) {
             let Some((z, p)) = at(x, y) else { continue };
-            let (Some(l), Some(r), Some(u), Some(d)) = (at(x - 1, y), at(x + 1, y), at(x, y - 1), at(x, y + 1)) else { continue };
+            let (Some(l), Some(r), Some(u), Some(d)) =
+                (at(x - 1, y), at(x + 1, y), at(x, y - 1), at(x, y + 1))
+            else {
+                continue;
+            };
             if [l, r, u, d].iter().any(|q| (q.0 - z).abs() > 0.1 * z) {
                 continue;
             }
@@ -188,8 +230,18 @@ fn spread(mut v: Vec<f64>) -> f64 {
 /// The outermost layer of `coord` seen from the low end (`from_low`) or the high end:
 /// three bins holding `min_points` whose points spread over `min_spread` along each of the
 /// `lateral` coordinates, lying beyond `limit` (outside the cameras). Its median coordinate.
-fn outer_layer(coord: &[f64], lateral: &[&[f64]], from_low: bool, limit: f64, p: &LayoutParams) -> Option<f64> {
-    let (lo, hi) = coord.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &c| (a.min(c), b.max(c)));
+fn outer_layer(
+    coord: &[f64],
+    lateral: &[&[f64]],
+    from_low: bool,
+    limit: f64,
+    p: &LayoutParams,
+) -> Option<f64> {
+    let (lo, hi) = coord
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &c| {
+            (a.min(c), b.max(c))
+        });
     // A wild (finite) pose can spread the points over kilometres: no histogram then.
     if !(lo.is_finite() && hi.is_finite()) || p.bin <= 0.0 || (hi - lo) / p.bin > MAX_BINS {
         return None;
@@ -200,7 +252,11 @@ fn outer_layer(coord: &[f64], lateral: &[&[f64]], from_low: bool, limit: f64, p:
     for &c in coord {
         counts[bin_of(c)] += 1;
     }
-    let order: Vec<usize> = if from_low { (0..n).collect() } else { (0..n).rev().collect() };
+    let order: Vec<usize> = if from_low {
+        (0..n).collect()
+    } else {
+        (0..n).rev().collect()
+    };
     for i in order {
         let centre = lo + (i as f64 + 0.5) * p.bin;
         if (from_low && centre > limit) || (!from_low && centre < limit) {
@@ -210,8 +266,13 @@ fn outer_layer(coord: &[f64], lateral: &[&[f64]], from_low: bool, limit: f64, p:
         if counts[window.clone()].iter().sum::<usize>() < p.min_points || counts[i] == 0 {
             continue;
         }
-        let members: Vec<usize> = (0..coord.len()).filter(|&k| window.contains(&bin_of(coord[k]))).collect();
-        if lateral.iter().all(|l| spread(members.iter().map(|&k| l[k]).collect()) >= p.min_spread) {
+        let members: Vec<usize> = (0..coord.len())
+            .filter(|&k| window.contains(&bin_of(coord[k])))
+            .collect();
+        if lateral
+            .iter()
+            .all(|l| spread(members.iter().map(|&k| l[k]).collect()) >= p.min_spread)
+        {
             let mut c: Vec<f64> = members.iter().map(|&k| coord[k]).collect();
             return quantile(&mut c, 0.5);
         }
@@ -227,7 +288,11 @@ fn peakedness(xy: &[[f64; 2]], angle: f64, bin: f64) -> f64 {
     for axis in 0..2 {
         let mut counts: std::collections::HashMap<i64, usize> = std::collections::HashMap::new();
         for p in xy {
-            let t = if axis == 0 { c * p[0] + s * p[1] } else { -s * p[0] + c * p[1] };
+            let t = if axis == 0 {
+                c * p[0] + s * p[1]
+            } else {
+                -s * p[0] + c * p[1]
+            };
             *counts.entry((t / bin).floor() as i64).or_default() += 1;
         }
         total += counts.values().map(|&n| (n * n) as f64).sum::<f64>();
@@ -250,23 +315,47 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     }
     // Frame ends (`frame_ends`) are taken on the full samples: thinning moves them.
     let full = samples;
-    let samples: Vec<&Sample> = full.iter().step_by(full.len().div_ceil(p.max_points.max(1)).max(1)).collect();
+    let samples: Vec<&Sample> = full
+        .iter()
+        .step_by(full.len().div_ceil(p.max_points.max(1)).max(1))
+        .collect();
     let range = quantile(&mut readings, p.range_quantile)?;
-    let ext = |v: &mut dyn Iterator<Item = f64>| v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+    let ext = |v: &mut dyn Iterator<Item = f64>| {
+        v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+            (a.min(x), b.max(x))
+        })
+    };
     // Floor and ceiling from the surfaces facing up or down.
-    let level: Vec<&Sample> = samples.iter().copied().filter(|s| s.n.z.abs() >= FACING).collect();
-    let (xs, ys, zs): (Vec<f64>, Vec<f64>, Vec<f64>) = (level.iter().map(|s| s.p.x).collect(), level.iter().map(|s| s.p.y).collect(), level.iter().map(|s| s.p.z).collect());
+    let level: Vec<&Sample> = samples
+        .iter()
+        .copied()
+        .filter(|s| s.n.z.abs() >= FACING)
+        .collect();
+    let (xs, ys, zs): (Vec<f64>, Vec<f64>, Vec<f64>) = (
+        level.iter().map(|s| s.p.x).collect(),
+        level.iter().map(|s| s.p.y).collect(),
+        level.iter().map(|s| s.p.z).collect(),
+    );
     let (eye_lo, eye_hi) = ext(&mut eyes.iter().map(|e| e.z));
     let floor = outer_layer(&zs, &[&xs, &ys], true, eye_lo, p);
     let ceiling = outer_layer(&zs, &[&xs, &ys], false, eye_hi, p);
     // Walls from the surfaces facing sideways: the turn that makes their horizontal
     // coordinates most peaked, then each turned axis's outermost layers facing along it.
-    let upright: Vec<&Sample> = samples.iter().copied().filter(|s| s.n.z.abs() <= 1.0 - FACING).collect();
+    let upright: Vec<&Sample> = samples
+        .iter()
+        .copied()
+        .filter(|s| s.n.z.abs() <= 1.0 - FACING)
+        .collect();
     let xy: Vec<[f64; 2]> = {
         let k = upright.len().div_ceil(20_000).max(1);
         upright.iter().step_by(k).map(|s| [s.p.x, s.p.y]).collect()
     };
-    let best = |angles: &mut dyn Iterator<Item = f64>| angles.map(|a| (a, peakedness(&xy, a.to_radians(), p.bin))).max_by(|a, b| a.1.total_cmp(&b.1)).map(|(a, _)| a);
+    let best = |angles: &mut dyn Iterator<Item = f64>| {
+        angles
+            .map(|a| (a, peakedness(&xy, a.to_radians(), p.bin)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(a, _)| a)
+    };
     let coarse = best(&mut (-45..45).map(f64::from))?;
     let angle_deg = best(&mut (-10..=10).map(|k| coarse + 0.1 * f64::from(k)))?;
     let frame_ends = frame_ends(&full, frames.len(), angle_deg);
@@ -282,13 +371,21 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
             })
             .map(|q| {
                 let (u, v) = turn(q.p.x, q.p.y);
-                if axis == 0 { (u, v) } else { (v, u) }
+                if axis == 0 {
+                    (u, v)
+                } else {
+                    (v, u)
+                }
             })
             .collect();
         let (along, lateral): (Vec<f64>, Vec<f64>) = facing.into_iter().unzip();
         let (lo, hi) = ext(&mut eyes.iter().map(|e| {
             let (u, v) = turn(e.x, e.y);
-            if axis == 0 { u } else { v }
+            if axis == 0 {
+                u
+            } else {
+                v
+            }
         }));
         // A wall no frame faced (the cameras looked along it, and it was beyond range where
         // they faced it) still ends what the frames measured: where the walls along it and
@@ -298,24 +395,50 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
         let end = |mut e: Vec<f64>, limit: f64| {
             e.sort_by(f64::total_cmp);
             let first = *e.first()?;
-            let agree: Vec<f64> = e.into_iter().take_while(|x| *x <= first + 3.0 * p.bin).collect();
-            (agree.len() >= p.end_frames.max(1) && first < limit).then(|| (agree[agree.len() / 2], false))
+            let agree: Vec<f64> = e
+                .into_iter()
+                .take_while(|x| *x <= first + 3.0 * p.bin)
+                .collect();
+            (agree.len() >= p.end_frames.max(1) && first < limit)
+                .then(|| (agree[agree.len() / 2], false))
         };
         let end_lo = || end(ends.iter().map(|e| e.0).collect(), lo);
         let end_hi = || end(ends.iter().map(|e| -e.1).collect(), -hi).map(|(x, f)| (-x, f));
         *sides = [
-            outer_layer(&along, &[&lateral], true, lo, p).map(|w| (w, true)).or_else(end_lo),
-            outer_layer(&along, &[&lateral], false, hi, p).map(|w| (w, true)).or_else(end_hi),
+            outer_layer(&along, &[&lateral], true, lo, p)
+                .map(|w| (w, true))
+                .or_else(end_lo),
+            outer_layer(&along, &[&lateral], false, hi, p)
+                .map(|w| (w, true))
+                .or_else(end_hi),
         ];
     }
     let [u, v] = walls;
-    let faced = [u[0].is_some_and(|w| w.1), u[1].is_some_and(|w| w.1), v[0].is_some_and(|w| w.1), v[1].is_some_and(|w| w.1)];
+    let faced = [
+        u[0].is_some_and(|w| w.1),
+        u[1].is_some_and(|w| w.1),
+        v[0].is_some_and(|w| w.1),
+        v[1].is_some_and(|w| w.1),
+    ];
     let (u, v) = (u.map(|w| w.map(|w| w.0)), v.map(|w| w.map(|w| w.0)));
     let reach = [0, 1, 2].map(|axis| {
         let ends = &frame_ends[axis];
-        ends.iter().fold([f64::INFINITY, f64::NEG_INFINITY], |[a, b], e| [a.min(e.0), b.max(e.1)])
+        ends.iter()
+            .fold([f64::INFINITY, f64::NEG_INFINITY], |[a, b], e| {
+                [a.min(e.0), b.max(e.1)]
+            })
     });
-    Some(RoomLayout { angle_deg, u, v, faced, floor, ceiling, reach, points: full.len(), range })
+    Some(RoomLayout {
+        angle_deg,
+        u,
+        v,
+        faced,
+        floor,
+        ceiling,
+        reach,
+        points: full.len(),
+        range,
+    })
 }
 
 /// Where each frame's samples end (see [`END_RANK`]) along u and v (turned by `angle`
@@ -363,7 +486,11 @@ impl RoomLayout {
     pub fn exit(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Option<f64> {
         let (ou, ov) = self.turn(o.x, o.y);
         let (du, dv) = self.turn(d.x, d.y);
-        let sides = [(ou, du, self.u, self.reach[0]), (ov, dv, self.v, self.reach[1]), (o.z, d.z, [self.floor, self.ceiling], self.reach[2])];
+        let sides = [
+            (ou, du, self.u, self.reach[0]),
+            (ov, dv, self.v, self.reach[1]),
+            (o.z, d.z, [self.floor, self.ceiling], self.reach[2]),
+        ];
         // Through the sides found; an open side is no further than... unknown, but at least
         // as far as anything measured: the ray is inside the room until it gets there.
         let (mut t_exit, mut t_known) = (f64::INFINITY, f64::INFINITY);
@@ -371,7 +498,13 @@ impl RoomLayout {
             if lo.is_some_and(|l| oc < l) || hi.is_some_and(|h| oc > h) {
                 return None;
             }
-            let (bound, reach) = if dc > 1e-12 { (hi, rhi) } else if dc < -1e-12 { (lo, rlo) } else { continue };
+            let (bound, reach) = if dc > 1e-12 {
+                (hi, rhi)
+            } else if dc < -1e-12 {
+                (lo, rlo)
+            } else {
+                continue;
+            };
             match bound {
                 Some(b) => t_exit = t_exit.min((b - oc) / dc),
                 None => t_known = t_known.min((reach - oc) / dc),
@@ -382,7 +515,13 @@ impl RoomLayout {
 
     /// Camera depth at which the viewing ray through colour pixel (u, v) of `cam` leaves
     /// the room (`None`: open side, bad pose, or the camera outside the room).
-    pub fn exit_depth(&self, cam: &FrameCamera, cam_to_out: &Matrix4<f64>, u: f64, v: f64) -> Option<f64> {
+    pub fn exit_depth(
+        &self,
+        cam: &FrameCamera,
+        cam_to_out: &Matrix4<f64>,
+        u: f64,
+        v: f64,
+    ) -> Option<f64> {
         let o = transform_point(cam_to_out, &Point3::origin());
         let d = transform_point(cam_to_out, &cam.color.unproject(u, v, 1.0)) - o;
         self.exit(&o, &d)

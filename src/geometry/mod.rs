@@ -16,8 +16,8 @@ pub mod camera;
 pub mod cloud;
 pub mod consensus;
 pub mod depth_fill;
-pub mod layout;
 pub mod ensemble;
+pub mod layout;
 pub mod mask;
 pub mod morph;
 pub mod params;
@@ -33,21 +33,24 @@ pub mod walls;
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
 pub use cloud::{
-    chamfer_distance, neighbour_mean_distances, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
+    chamfer_distance, neighbour_mean_distances, remove_statistical_outliers,
+    statistical_outlier_indices, voxel_downsample,
 };
-pub use depth_fill::{fill_depth, DepthFillParams, DepthFillStats};
-pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use consensus::{free_space_votes, mask_votes, ConsensusParams, MaskView};
+pub use depth_fill::{fill_depth, DepthFillParams, DepthFillStats};
 pub use ensemble::{
-    chamfer_decisions, find_views, find_views_with_room, fuse_clouds, fuse_views, mask_points, single_view_box, CandidateFrame, FusionResult,
-    ViewCandidate, ViewDecision,
+    chamfer_decisions, find_views, find_views_with_room, fuse_clouds, fuse_views, mask_points,
+    single_view_box, CandidateFrame, FusionResult, ViewCandidate, ViewDecision,
 };
+pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
 pub use planar::{snap_planar_to_wall, PlanarSnap};
-pub use walls::{cut_wall_leaks, WallCut};
-pub use support::{context_points, extend_to_support, median_point, SupportExtension, SupportParams};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,
 };
+pub use support::{
+    context_points, extend_to_support, median_point, SupportExtension, SupportParams,
+};
+pub use walls::{cut_wall_leaks, WallCut};

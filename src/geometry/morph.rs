@@ -51,7 +51,8 @@ fn paste(width: u32, height: u32, part: &Mask, b: [u32; 4]) -> Mask {
     for y in b[1]..b[3] {
         let dst = (y * width + b[0]) as usize;
         let src = ((y - b[1]) * part.width) as usize;
-        out.data[dst..dst + part.width as usize].copy_from_slice(&part.data[src..src + part.width as usize]);
+        out.data[dst..dst + part.width as usize]
+            .copy_from_slice(&part.data[src..src + part.width as usize]);
     }
     out
 }
@@ -101,7 +102,12 @@ fn bounds(mask: &Mask, margin: u32) -> Option<[u32; 4]> {
         }
     }
     (x1 > 0).then(|| {
-        [x0.saturating_sub(margin), y0.saturating_sub(margin), (x1 + margin).min(mask.width), (y1 + margin).min(mask.height)]
+        [
+            x0.saturating_sub(margin),
+            y0.saturating_sub(margin),
+            (x1 + margin).min(mask.width),
+            (y1 + margin).min(mask.height),
+        ]
     })
 }
 
@@ -110,7 +116,8 @@ fn crop(mask: &Mask, b: [u32; 4]) -> Mask {
     for y in b[1]..b[3] {
         let src = (y * mask.width + b[0]) as usize;
         let dst = ((y - b[1]) * out.width) as usize;
-        out.data[dst..dst + out.width as usize].copy_from_slice(&mask.data[src..src + out.width as usize]);
+        out.data[dst..dst + out.width as usize]
+            .copy_from_slice(&mask.data[src..src + out.width as usize]);
     }
     out
 }
@@ -175,7 +182,11 @@ mod tests {
         rect(&mut m, 25, 34, 29, 38);
         for (k, keep) in [(3, 2), (5, 2), (3, 0), (7, 1)] {
             let full = keep_largest_components(&erode_square(&m, k), keep);
-            assert_eq!(postprocess_mask(&m, k, keep), full, "kernel {k} keep {keep}");
+            assert_eq!(
+                postprocess_mask(&m, k, keep),
+                full,
+                "kernel {k} keep {keep}"
+            );
         }
         assert_eq!(postprocess_mask(&Mask::new(5, 5), 3, 2).count(), 0);
     }
@@ -187,7 +198,13 @@ mod tests {
         rect(&mut m, 30, 10, 45, 25);
         rect(&mut m, 52, 0, 60, 6); // touches the top-right corner
         for k in [3, 5, 9, 15] {
-            for (name, op) in [("erode", imageproc::morphology::erode as fn(&GrayImage, Norm, u8) -> GrayImage), ("dilate", imageproc::morphology::dilate)] {
+            for (name, op) in [
+                (
+                    "erode",
+                    imageproc::morphology::erode as fn(&GrayImage, Norm, u8) -> GrayImage,
+                ),
+                ("dilate", imageproc::morphology::dilate),
+            ] {
                 let whole = op(&to_gray(&m), Norm::LInf, (k / 2) as u8);
                 let want: Vec<bool> = whole.pixels().map(|p| p[0] > 0).collect();
                 assert_eq!(square_op(&m, k, op).data, want, "{name} kernel {k}");

@@ -136,12 +136,27 @@ mod tests {
 
     #[test]
     fn serde_defaults_and_partial_override() {
-        let d: GeometryParams = serde_json::from_str("{}").unwrap_or_else(|_| GeometryParams { max_views: 0, ..Default::default() });
+        let d: GeometryParams = serde_json::from_str("{}").unwrap_or_else(|_| GeometryParams {
+            max_views: 0,
+            ..Default::default()
+        });
         assert_eq!(d, GeometryParams::default());
-        assert_eq!((d.erode_kernel, d.keep_components, d.sor_neighbors, d.max_views), (15, 2, 5, 7));
-        let p: GeometryParams = serde_json::from_str(r#"{"erode_kernel": 5, "chamfer_threshold": 0.2}"#)
-            .unwrap_or_default();
-        assert_eq!((p.erode_kernel, p.chamfer_threshold, p.sor_std_ratio), (5, 0.2, 1.0));
+        assert_eq!(
+            (
+                d.erode_kernel,
+                d.keep_components,
+                d.sor_neighbors,
+                d.max_views
+            ),
+            (15, 2, 5, 7)
+        );
+        let p: GeometryParams =
+            serde_json::from_str(r#"{"erode_kernel": 5, "chamfer_threshold": 0.2}"#)
+                .unwrap_or_default();
+        assert_eq!(
+            (p.erode_kernel, p.chamfer_threshold, p.sor_std_ratio),
+            (5, 0.2, 1.0)
+        );
         assert!((p.visibility_tolerance(2.0) - 0.11).abs() < 1e-12);
     }
 

@@ -61,13 +61,28 @@ fn quartiles(points: &[Point3<f64>], a: usize) -> (f64, f64, f64) {
 /// holds at least `min_points` and reaches past the footprint sideways at the footprint's
 /// height; its median coordinate. The densest slice, not the nearest: the plane's own noisy
 /// fringe shows up just behind it, but a wall around an object is much larger than that.
-fn densest_layer(slab: &Aabb, context: &[Point3<f64>], (axis, sign): (usize, f64), p: &SupportParams) -> Option<f64> {
+fn densest_layer(
+    slab: &Aabb,
+    context: &[Point3<f64>],
+    (axis, sign): (usize, f64),
+    p: &SupportParams,
+) -> Option<f64> {
     let others = [(axis + 1) % 3, (axis + 2) % 3];
     let front = slab.min[axis];
     let in_ring = |q: &Point3<f64>| {
-        others.iter().all(|&o| q[o] >= slab.min[o] - p.margin && q[o] <= slab.max[o] + p.margin) && others.iter().any(|&o| q[o] < slab.min[o] || q[o] > slab.max[o])
+        others
+            .iter()
+            .all(|&o| q[o] >= slab.min[o] - p.margin && q[o] <= slab.max[o] + p.margin)
+            && others
+                .iter()
+                .any(|&o| q[o] < slab.min[o] || q[o] > slab.max[o])
     };
-    let mut gaps: Vec<f64> = context.iter().filter(|q| in_ring(q)).map(|q| sign * (q[axis] - front)).filter(|g| *g >= MIN_DEPTH && *g <= p.planar_max_depth).collect();
+    let mut gaps: Vec<f64> = context
+        .iter()
+        .filter(|q| in_ring(q))
+        .map(|q| sign * (q[axis] - front))
+        .filter(|g| *g >= MIN_DEPTH && *g <= p.planar_max_depth)
+        .collect();
     gaps.sort_by(f64::total_cmp);
     let (mut best, mut best_n) = (None, 0usize);
     for (lo, &g) in gaps.iter().enumerate() {
@@ -83,8 +98,16 @@ fn densest_layer(slab: &Aabb, context: &[Point3<f64>], (axis, sign): (usize, f64
     // back (its seat) or past a cabinet's front (its top) is below or above it.
     let lateral = 1 - axis;
     let beside = |q: &&Point3<f64>| q[2] >= slab.min[2] && q[2] <= slab.max[2];
-    let slice = context.iter().filter(|q| in_ring(q)).filter(beside).filter(|q| (g0..=g1).contains(&(sign * (q[axis] - front))));
-    if slice.filter(|q| q[lateral] < slab.min[lateral] || q[lateral] > slab.max[lateral]).count() < p.min_points {
+    let slice = context
+        .iter()
+        .filter(|q| in_ring(q))
+        .filter(beside)
+        .filter(|q| (g0..=g1).contains(&(sign * (q[axis] - front))));
+    if slice
+        .filter(|q| q[lateral] < slab.min[lateral] || q[lateral] > slab.max[lateral])
+        .count()
+        < p.min_points
+    {
         return None;
     }
     Some(front + sign * gaps[lo + best_n / 2])
@@ -110,7 +133,15 @@ pub const ON_ROOM_WALL: f64 = 0.002;
 /// object's, whatever layer the context shows nearby.
 /// Every plane found is reported, with its wall or none. Off when `planar_iqr` is 0 or
 /// support completion is disabled.
-pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f64>], room: Option<&RoomLayout>, camera: [f64; 3], flat_depth: f64, params: &GeometryParams) -> (Aabb, Vec<PlanarSnap>) {
+pub fn snap_planar_to_wall(
+    b: &Aabb,
+    anchor: &[Point3<f64>],
+    context: &[Point3<f64>],
+    room: Option<&RoomLayout>,
+    camera: [f64; 3],
+    flat_depth: f64,
+    params: &GeometryParams,
+) -> (Aabb, Vec<PlanarSnap>) {
     const NAMES: [&str; 2] = ["x", "y"];
     let p = &params.support;
     let mut out = *b;
@@ -120,11 +151,19 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
     }
     // The cloud single-view boxes use: one point per fusion voxel (even density, whatever
     // the distance), statistical outliers removed.
-    let anchor = &remove_statistical_outliers(&voxel_downsample(anchor, params.fusion_voxel), params.sor_neighbors, params.sor_std_ratio);
+    let anchor = &remove_statistical_outliers(
+        &voxel_downsample(anchor, params.fusion_voxel),
+        params.sor_neighbors,
+        params.sor_std_ratio,
+    );
     let Some(extent) = Aabb::from_points(anchor).filter(|_| anchor.len() >= 20) else {
         return (out, snaps);
     };
-    let qs = [quartiles(anchor, 0), quartiles(anchor, 1), quartiles(anchor, 2)];
+    let qs = [
+        quartiles(anchor, 0),
+        quartiles(anchor, 1),
+        quartiles(anchor, 2),
+    ];
     let iqr = |a: usize| qs[a].2 - qs[a].0;
     for a in 0..2 {
         let others = [(a + 1) % 3, (a + 2) % 3];
@@ -139,10 +178,17 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
         let mut slab = extent;
         slab.min[a] = front;
         slab.max[a] = front;
-        let centre = Point3::new((extent.min[0] + extent.max[0]) / 2.0, (extent.min[1] + extent.max[1]) / 2.0, (extent.min[2] + extent.max[2]) / 2.0);
+        let centre = Point3::new(
+            (extent.min[0] + extent.max[0]) / 2.0,
+            (extent.min[1] + extent.max[1]) / 2.0,
+            (extent.min[2] + extent.max[2]) / 2.0,
+        );
         let from_room = || {
             let walls = room?.walls_on_axis(a, &centre);
-            walls.into_iter().filter(|w| (-p.layer..=p.planar_max_depth).contains(&(sign * (w - front)))).min_by(|x, y| (sign * (x - front)).total_cmp(&(sign * (y - front))))
+            walls
+                .into_iter()
+                .filter(|w| (-p.layer..=p.planar_max_depth).contains(&(sign * (w - front))))
+                .min_by(|x, y| (sign * (x - front)).total_cmp(&(sign * (y - front))))
         };
         // The room's wall the anchor's points were ended on, if most of them were.
         // (Each point against the wall where it stands: a wall turned a little off the axis
@@ -158,7 +204,9 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
                     }
                 }
             }
-            on.iter().position(|&n| 2 * n >= anchor.len()).map(|k| at_centre[k])
+            on.iter()
+                .position(|&n| 2 * n >= anchor.len())
+                .map(|k| at_centre[k])
         };
         let (wall, room_wall, on_wall) = match placed_on() {
             Some(w) => (Some(w), true, true),
@@ -167,10 +215,21 @@ pub fn snap_planar_to_wall(b: &Aabb, anchor: &[Point3<f64>], context: &[Point3<f
                 None => (from_room(), true, false),
             },
         };
-        snaps.push(PlanarSnap { axis: NAMES[a], iqr: iqr(a), front, wall, room_wall: room_wall && wall.is_some(), was: [b.min[a], b.max[a]] });
+        snaps.push(PlanarSnap {
+            axis: NAMES[a],
+            iqr: iqr(a),
+            front,
+            wall,
+            room_wall: room_wall && wall.is_some(),
+            was: [b.min[a], b.max[a]],
+        });
         if let Some(wall) = wall {
             // On its wall: the object's front was never seen apart from it.
-            let front = if on_wall || sign * (wall - front) < MIN_DEPTH { wall - sign * flat_depth } else { front };
+            let front = if on_wall || sign * (wall - front) < MIN_DEPTH {
+                wall - sign * flat_depth
+            } else {
+                front
+            };
             out.min[a] = front.min(wall);
             out.max[a] = front.max(wall);
         }
@@ -184,12 +243,20 @@ mod tests {
 
     /// Deterministic noise in [-1, 1].
     fn jitter(i: usize, k: u64) -> f64 {
-        let h = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(k.wrapping_mul(0xBF58_476D_1CE4_E5B9));
+        let h = (i as u64)
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(k.wrapping_mul(0xBF58_476D_1CE4_E5B9));
         ((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
 
     /// Points on the plane y = `y` over x in [x0, x1], z in [z0, z1], with noise `n` on y.
-    fn plane_y(y: f64, (x0, x1): (f64, f64), (z0, z1): (f64, f64), n: f64, hole: Option<[f64; 4]>) -> Vec<Point3<f64>> {
+    fn plane_y(
+        y: f64,
+        (x0, x1): (f64, f64),
+        (z0, z1): (f64, f64),
+        n: f64,
+        hole: Option<[f64; 4]>,
+    ) -> Vec<Point3<f64>> {
         let mut out = Vec::new();
         let mut i = 0;
         let mut x = x0;
@@ -212,14 +279,34 @@ mod tests {
         // Window 6 cm deep flush with the wall at y = 6.11; its face at 6.05 seen with
         // ±3 cm of noise, the camera in the room (y < 6).
         let window = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.03, None);
-        let wall = plane_y(6.11, (0.4, 2.2), (0.7, 2.4), 0.01, Some([0.7, 1.9, 1.0, 2.1]));
+        let wall = plane_y(
+            6.11,
+            (0.4, 2.2),
+            (0.7, 2.4),
+            0.01,
+            Some([0.7, 1.9, 1.0, 2.1]),
+        );
         let fused = Aabb::new([0.68, 5.9, 0.98], [1.92, 6.2, 2.12]);
-        let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &GeometryParams::default());
+        let (b, snaps) = snap_planar_to_wall(
+            &fused,
+            &window,
+            &wall,
+            None,
+            [1.3, 3.0, 1.5],
+            0.05,
+            &GeometryParams::default(),
+        );
         assert_eq!(snaps.len(), 1, "{snaps:?}");
         assert_eq!(snaps[0].axis, "y");
         assert!(snaps[0].applied());
-        assert!((b.min[1] - 6.05).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01, "{b:?}");
-        assert_eq!((b.min[0], b.max[0], b.min[2], b.max[2]), (0.68, 1.92, 0.98, 2.12));
+        assert!(
+            (b.min[1] - 6.05).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01,
+            "{b:?}"
+        );
+        assert_eq!(
+            (b.min[0], b.max[0], b.min[2], b.max[2]),
+            (0.68, 1.92, 0.98, 2.12)
+        );
     }
 
     #[test]
@@ -229,21 +316,79 @@ mod tests {
         // nothing measured around it.
         let window = plane_y(6.11, (0.7, 1.9), (1.0, 2.1), 0.0, None);
         let b = Aabb::new([0.7, 6.11, 1.0], [1.9, 6.11, 2.1]);
-        let room = RoomLayout { angle_deg: 0.0, u: [Some(0.0), Some(5.0)], v: [Some(0.0), Some(6.11)], faced: [true; 4], floor: Some(0.0), ceiling: None, reach: [[0.0, 5.0], [0.0, 6.11], [0.0, 2.5]], range: 5.0, points: 1000 };
+        let room = RoomLayout {
+            angle_deg: 0.0,
+            u: [Some(0.0), Some(5.0)],
+            v: [Some(0.0), Some(6.11)],
+            faced: [true; 4],
+            floor: Some(0.0),
+            ceiling: None,
+            reach: [[0.0, 5.0], [0.0, 6.11], [0.0, 2.5]],
+            range: 5.0,
+            points: 1000,
+        };
         let gp = GeometryParams::default();
-        let (got, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&room), [1.3, 1.0, 1.5], gp.layout.flat_depth, &gp);
-        assert!(snaps.len() == 1 && snaps[0].applied() && snaps[0].room_wall, "{snaps:?}");
-        assert!((got.min[1] - (6.11 - gp.layout.flat_depth)).abs() < 1e-6 && (got.max[1] - 6.11).abs() < 1e-6, "{got:?}");
+        let (got, snaps) = snap_planar_to_wall(
+            &b,
+            &window,
+            &[],
+            Some(&room),
+            [1.3, 1.0, 1.5],
+            gp.layout.flat_depth,
+            &gp,
+        );
+        assert!(
+            snaps.len() == 1 && snaps[0].applied() && snaps[0].room_wall,
+            "{snaps:?}"
+        );
+        assert!(
+            (got.min[1] - (6.11 - gp.layout.flat_depth)).abs() < 1e-6
+                && (got.max[1] - 6.11).abs() < 1e-6,
+            "{got:?}"
+        );
         // A window measured 6 cm in front of that wall spans to it (the room's wall stands
         // in for a wall the context missed).
         let measured = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.005, None);
-        let (got, _) = snap_planar_to_wall(&Aabb::new([0.7, 6.04, 1.0], [1.9, 6.06, 2.1]), &measured, &[], Some(&room), [1.3, 1.0, 1.5], 0.05, &gp);
-        assert!((got.min[1] - 6.05).abs() < 0.01 && (got.max[1] - 6.11).abs() < 1e-6, "{got:?}");
+        let (got, _) = snap_planar_to_wall(
+            &Aabb::new([0.7, 6.04, 1.0], [1.9, 6.06, 2.1]),
+            &measured,
+            &[],
+            Some(&room),
+            [1.3, 1.0, 1.5],
+            0.05,
+            &gp,
+        );
+        assert!(
+            (got.min[1] - 6.05).abs() < 0.01 && (got.max[1] - 6.11).abs() < 1e-6,
+            "{got:?}"
+        );
         // Without a room and a context, nothing to snap to.
-        assert_eq!(snap_planar_to_wall(&b, &window, &[], None, [1.3, 1.0, 1.5], gp.layout.flat_depth, &gp), (b, vec![]));
+        assert_eq!(
+            snap_planar_to_wall(
+                &b,
+                &window,
+                &[],
+                None,
+                [1.3, 1.0, 1.5],
+                gp.layout.flat_depth,
+                &gp
+            ),
+            (b, vec![])
+        );
         // A room's wall 1 m behind the plane is out of reach.
-        let far = RoomLayout { v: [Some(0.0), Some(7.11)], ..room };
-        let (same, snaps) = snap_planar_to_wall(&b, &window, &[], Some(&far), [1.3, 1.0, 1.5], gp.layout.flat_depth, &gp);
+        let far = RoomLayout {
+            v: [Some(0.0), Some(7.11)],
+            ..room
+        };
+        let (same, snaps) = snap_planar_to_wall(
+            &b,
+            &window,
+            &[],
+            Some(&far),
+            [1.3, 1.0, 1.5],
+            gp.layout.flat_depth,
+            &gp,
+        );
         assert!(same == b && !snaps[0].applied(), "{snaps:?}");
     }
 
@@ -253,24 +398,68 @@ mod tests {
         // Depth completion put the picture's points on the room's wall x = 6.99; the
         // context, measured at the range's end, holds a noisy layer 2.5 cm behind it.
         // The room is turned by 1 degree: its wall's x changes by 12 mm along the picture.
-        let room = RoomLayout { angle_deg: 1.0, u: [Some(0.0), Some(6.99)], v: [Some(0.0), Some(5.0)], faced: [true; 4], floor: Some(0.0), ceiling: None, reach: [[0.0, 6.99], [0.0, 5.0], [0.0, 2.5]], range: 5.0, points: 1000 };
+        let room = RoomLayout {
+            angle_deg: 1.0,
+            u: [Some(0.0), Some(6.99)],
+            v: [Some(0.0), Some(5.0)],
+            faced: [true; 4],
+            floor: Some(0.0),
+            ceiling: None,
+            reach: [[0.0, 6.99], [0.0, 5.0], [0.0, 2.5]],
+            range: 5.0,
+            points: 1000,
+        };
         let (s1, c1) = 1f64.to_radians().sin_cos();
         let wall_x = |y: f64| (6.99 - s1 * y) / c1;
-        let picture: Vec<Point3<f64>> = plane_y(0.0, (2.5, 3.2), (1.4, 1.9), 0.0, None).into_iter().map(|p| Point3::new(wall_x(p.x), p.x, p.z)).collect();
-        let layer: Vec<Point3<f64>> = plane_y(0.0, (2.2, 3.5), (1.1, 2.2), 0.0, Some([2.5, 3.2, 1.4, 1.9])).into_iter().enumerate().map(|(i, p)| Point3::new(wall_x(p.x) + 0.025 + 0.005 * jitter(i, 3), p.x, p.z)).collect();
+        let picture: Vec<Point3<f64>> = plane_y(0.0, (2.5, 3.2), (1.4, 1.9), 0.0, None)
+            .into_iter()
+            .map(|p| Point3::new(wall_x(p.x), p.x, p.z))
+            .collect();
+        let layer: Vec<Point3<f64>> =
+            plane_y(0.0, (2.2, 3.5), (1.1, 2.2), 0.0, Some([2.5, 3.2, 1.4, 1.9]))
+                .into_iter()
+                .enumerate()
+                .map(|(i, p)| Point3::new(wall_x(p.x) + 0.025 + 0.005 * jitter(i, 3), p.x, p.z))
+                .collect();
         let b = Aabb::new([6.9, 2.5, 1.4], [7.0, 3.2, 1.9]);
         let gp = GeometryParams::default();
         let depth = gp.layout.flat_depth_for("purple picture");
         assert_eq!(depth, 0.03);
-        let (got, snaps) = snap_planar_to_wall(&b, &picture, &layer, Some(&room), [3.0, 2.0, 1.5], depth, &gp);
+        let (got, snaps) = snap_planar_to_wall(
+            &b,
+            &picture,
+            &layer,
+            Some(&room),
+            [3.0, 2.0, 1.5],
+            depth,
+            &gp,
+        );
         assert!(snaps.len() == 1 && snaps[0].room_wall, "{snaps:?}");
         let w = wall_x(2.85);
-        assert!((got.min[0] - (w - 0.03)).abs() < 1e-3 && (got.max[0] - w).abs() < 1e-3, "{got:?}");
+        assert!(
+            (got.min[0] - (w - 0.03)).abs() < 1e-3 && (got.max[0] - w).abs() < 1e-3,
+            "{got:?}"
+        );
         // The same points measured (scattered by noise) are a front plane: the layer behind
         // is their wall.
-        let measured: Vec<Point3<f64>> = picture.iter().enumerate().map(|(i, p)| Point3::new(p.x + 0.01 * jitter(i, 5), p.y, p.z)).collect();
-        let (got, snaps) = snap_planar_to_wall(&b, &measured, &layer, Some(&room), [3.0, 2.0, 1.5], depth, &gp);
-        assert!(!snaps[0].room_wall && (got.max[0] - (w + 0.025)).abs() < 0.008, "{got:?} {snaps:?}");
+        let measured: Vec<Point3<f64>> = picture
+            .iter()
+            .enumerate()
+            .map(|(i, p)| Point3::new(p.x + 0.01 * jitter(i, 5), p.y, p.z))
+            .collect();
+        let (got, snaps) = snap_planar_to_wall(
+            &b,
+            &measured,
+            &layer,
+            Some(&room),
+            [3.0, 2.0, 1.5],
+            depth,
+            &gp,
+        );
+        assert!(
+            !snaps[0].room_wall && (got.max[0] - (w + 0.025)).abs() < 0.008,
+            "{got:?} {snaps:?}"
+        );
         // Classes without an entry get the default depth.
         assert_eq!(gp.layout.flat_depth_for("door"), gp.layout.flat_depth);
         assert_eq!(gp.layout.flat_depth_for("pictures"), 0.03);
@@ -279,27 +468,59 @@ mod tests {
     #[test]
     fn deep_objects_free_standing_planes_and_disabled_settings_are_left_alone() {
         let gp = GeometryParams::default();
-        let wall = plane_y(6.11, (0.4, 2.2), (0.0, 2.4), 0.005, Some([0.7, 1.9, 0.0, 1.0]));
+        let wall = plane_y(
+            6.11,
+            (0.4, 2.2),
+            (0.0, 2.4),
+            0.005,
+            Some([0.7, 1.9, 0.0, 1.0]),
+        );
         // A cabinet: its front and its top are seen, so the cloud is no plane.
         let mut cabinet = plane_y(5.6, (0.7, 1.9), (0.0, 0.9), 0.005, None);
         for k in 0..25 {
-            cabinet.extend(plane_y(5.6 + 0.02 * k as f64, (0.7, 1.9), (0.9, 0.9), 0.0, None));
+            cabinet.extend(plane_y(
+                5.6 + 0.02 * k as f64,
+                (0.7, 1.9),
+                (0.9, 0.9),
+                0.0,
+                None,
+            ));
         }
         let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
-        assert_eq!(snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp), (b, vec![]), "not a plane");
+        assert_eq!(
+            snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp),
+            (b, vec![]),
+            "not a plane"
+        );
         // A screen standing 40 cm in front of the wall: the wall is too far to be its back.
         let screen = plane_y(5.7, (0.7, 1.9), (0.2, 0.9), 0.02, None);
         let b = Aabb::new([0.7, 5.66, 0.2], [1.9, 5.74, 0.9]);
-        let (same, snaps) = snap_planar_to_wall(&b, &screen, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp);
+        let (same, snaps) =
+            snap_planar_to_wall(&b, &screen, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp);
         assert_eq!(same, b);
-        assert!(snaps.len() == 1 && !snaps[0].applied(), "a plane, but no wall within reach: {snaps:?}");
+        assert!(
+            snaps.len() == 1 && !snaps[0].applied(),
+            "a plane, but no wall within reach: {snaps:?}"
+        );
         // A chair seen from behind: its back is a plane, its seat lies behind it, but only
         // below the back, not on both sides as a wall does.
         let back = plane_y(2.0, (1.0, 1.45), (0.5, 0.95), 0.005, None);
         let mut seat = Vec::new();
         for k in 0..8 {
-            seat.extend(plane_y(2.02 + 0.01 * k as f64, (0.95, 1.5), (0.45, 0.45), 0.0, None));
-            seat.extend(plane_y(2.02 + 0.01 * k as f64, (0.95, 1.5), (0.43, 0.43), 0.0, None));
+            seat.extend(plane_y(
+                2.02 + 0.01 * k as f64,
+                (0.95, 1.5),
+                (0.45, 0.45),
+                0.0,
+                None,
+            ));
+            seat.extend(plane_y(
+                2.02 + 0.01 * k as f64,
+                (0.95, 1.5),
+                (0.43, 0.43),
+                0.0,
+                None,
+            ));
         }
         let b = Aabb::new([1.0, 1.98, 0.0], [1.45, 2.45, 0.95]);
         let (same, snaps) = snap_planar_to_wall(&b, &back, &seat, None, [1.2, 0.5, 1.2], 0.05, &gp);
@@ -307,11 +528,20 @@ mod tests {
         // Seen from behind the wall (camera at y > 6.11), the wall is on the camera's side.
         let window = plane_y(6.05, (0.7, 1.9), (0.0, 1.0), 0.02, None);
         let b = Aabb::new([0.7, 6.0, 0.0], [1.9, 6.1, 1.0]);
-        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 8.0, 1.5], 0.05, &gp).0, b);
+        assert_eq!(
+            snap_planar_to_wall(&b, &window, &wall, None, [1.3, 8.0, 1.5], 0.05, &gp).0,
+            b
+        );
         // Off switches.
         let mut off = gp.clone();
         off.support.planar_iqr = 0.0;
-        assert_eq!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &off).1, vec![]);
-        assert!(snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp).1[0].applied());
+        assert_eq!(
+            snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &off).1,
+            vec![]
+        );
+        assert!(
+            snap_planar_to_wall(&b, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp).1[0]
+                .applied()
+        );
     }
 }

@@ -127,13 +127,18 @@ pub fn backproject_mask(
     if opts.one_per_depth_pixel {
         // No finer than the depth image: consecutive samples `ratio` colour pixels apart
         // still land on every depth pixel, and the skipped ones would read the same values.
-        let ratio = (cam.color.width / cam.depth_size.0.max(1)).min(cam.color.height / cam.depth_size.1.max(1));
+        let ratio = (cam.color.width / cam.depth_size.0.max(1))
+            .min(cam.color.height / cam.depth_size.1.max(1));
         stride = stride.max(ratio.max(1) as usize);
     }
     let w = mask.width as usize;
     let mut out = Vec::new();
     let dw = cam.depth_size.0 as usize;
-    let mut used = if opts.one_per_depth_pixel { vec![false; depth.data.len()] } else { Vec::new() };
+    let mut used = if opts.one_per_depth_pixel {
+        vec![false; depth.data.len()]
+    } else {
+        Vec::new()
+    };
     for y in (0..mask.height as usize).step_by(stride) {
         let row = &mask.data[y * w..(y + 1) * w];
         for x in (0..w).step_by(stride) {
@@ -189,20 +194,40 @@ pub fn project_points(
 ) -> Result<Vec<Option<Projected>>, ProjectionError> {
     cam.check_depth(depth)?;
     let to_cam = cam.out_to_cam()?;
-    Ok(points.iter().map(|p| project_one(p, &to_cam, cam, depth, params)).collect())
+    Ok(points
+        .iter()
+        .map(|p| project_one(p, &to_cam, cam, depth, params))
+        .collect())
 }
 
 /// One point of [`project_points`], with the world → camera transform already inverted
 /// (`to_cam`) and the depth map's size already checked.
-pub(crate) fn project_one(p: &Point3<f64>, to_cam: &Matrix4<f64>, cam: &FrameCamera, depth: &DepthMap, params: &GeometryParams) -> Option<Projected> {
+pub(crate) fn project_one(
+    p: &Point3<f64>,
+    to_cam: &Matrix4<f64>,
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    params: &GeometryParams,
+) -> Option<Projected> {
     let pc = transform_point(to_cam, p);
     let (u, v, z) = cam.color.project(&pc)?;
     let (w, h) = (cam.color.width as f64, cam.color.height as f64);
     // Pixel centres sit at integer coordinates: the image spans [-0.5, w - 0.5).
     let inside = u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5;
-    let measured = if inside { cam.depth_at_color(depth, u.round().max(0.0), v.round().max(0.0)) } else { None };
+    let measured = if inside {
+        cam.depth_at_color(depth, u.round().max(0.0), v.round().max(0.0))
+    } else {
+        None
+    };
     let visible = measured.is_some_and(|d| (d - z).abs() <= params.visibility_tolerance(z));
-    Some(Projected { u, v, z, inside, measured, visible })
+    Some(Projected {
+        u,
+        v,
+        z,
+        inside,
+        measured,
+        visible,
+    })
 }
 
 #[cfg(test)]
@@ -267,8 +292,12 @@ mod tests {
         let c = cam(false); // colour 80x60, depth 40x30
         let depth = DepthMap::new(40, 30, vec![2000; 1200]);
         let mask = Mask::from_box(80, 60, [0.0, 0.0, 80.0, 60.0]);
-        let all = backproject_mask(&mask, &c, &depth, BackprojectOptions::default()).unwrap_or_default();
-        let opts = BackprojectOptions { one_per_depth_pixel: true, ..Default::default() };
+        let all =
+            backproject_mask(&mask, &c, &depth, BackprojectOptions::default()).unwrap_or_default();
+        let opts = BackprojectOptions {
+            one_per_depth_pixel: true,
+            ..Default::default()
+        };
         let one = backproject_mask(&mask, &c, &depth, opts).unwrap_or_default();
         assert_eq!((all.len(), one.len()), (4800, 1200));
     }

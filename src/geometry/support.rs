@@ -114,7 +114,10 @@ pub(crate) fn class_in(list: &[String], class: &str) -> bool {
     let last = c.split_whitespace().last().unwrap_or("");
     list.iter().any(|h| {
         let h = h.to_lowercase();
-        h == c || h == last || h.strip_suffix('s').is_some_and(|x| x == last) || format!("{h}s") == last
+        h == c
+            || h == last
+            || h.strip_suffix('s').is_some_and(|x| x == last)
+            || format!("{h}s") == last
     })
 }
 
@@ -137,8 +140,25 @@ impl Default for SupportParams {
             min_points: 12,
             context_grow: 0.5,
             mask_clearance: 9,
-            hanging: ["window", "picture", "painting", "poster", "photo", "frame", "mirror", "whiteboard", "blackboard", "board", "clock", "sign"].map(String::from).to_vec(),
-            flat: ["door", "curtain", "blinds", "shade", "radiator"].map(String::from).to_vec(),
+            hanging: [
+                "window",
+                "picture",
+                "painting",
+                "poster",
+                "photo",
+                "frame",
+                "mirror",
+                "whiteboard",
+                "blackboard",
+                "board",
+                "clock",
+                "sign",
+            ]
+            .map(String::from)
+            .to_vec(),
+            flat: ["door", "curtain", "blinds", "shade", "radiator"]
+                .map(String::from)
+                .to_vec(),
             planar_iqr: 0.05,
             planar_max_depth: 0.15,
             wall_cut: true,
@@ -173,7 +193,12 @@ pub fn context_points(
 ) -> Result<Vec<Point3<f64>>, ProjectionError> {
     let (bw, bh) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
     let g = p.context_grow as f32;
-    let grown = [bbox[0] - g * bw, bbox[1] - g * bh, bbox[2] + g * bw, bbox[3] + g * bh];
+    let grown = [
+        bbox[0] - g * bw,
+        bbox[1] - g * bh,
+        bbox[2] + g * bw,
+        bbox[3] + g * bh,
+    ];
     let mut region = Mask::from_box(mask.width, mask.height, grown);
     let scale = f64::from(mask.width) / 1296.0;
     let clearance = (f64::from(p.mask_clearance) * scale).round() as u32;
@@ -181,7 +206,11 @@ pub fn context_points(
     for (r, b) in region.data.iter_mut().zip(&blocked.data) {
         *r &= !*b;
     }
-    let opts = BackprojectOptions { stride: 1, voxel: 0.0, one_per_depth_pixel: true };
+    let opts = BackprojectOptions {
+        stride: 1,
+        voxel: 0.0,
+        one_per_depth_pixel: true,
+    };
     let pts = backproject_mask(&region, cam, depth, opts)?;
     Ok(voxel_downsample(&pts, p.voxel))
 }
@@ -202,17 +231,32 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
 
 /// The nearest support layer beyond face (`axis`, `sign`) of `b`: its coordinate on `axis`
 /// and its voxel count.
-pub(crate) fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f64), max_gap: f64, margin: f64, p: &SupportParams) -> Option<(f64, usize)> {
+pub(crate) fn find_layer(
+    b: &Aabb,
+    ctx: &[Point3<f64>],
+    (axis, sign): (usize, f64),
+    max_gap: f64,
+    margin: f64,
+    p: &SupportParams,
+) -> Option<(f64, usize)> {
     let others = [(axis + 1) % 3, (axis + 2) % 3];
     let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
     // (gap beyond the face, point) for points in range.
     // Only the ring around the footprint: inside it the object hides its support, and any
     // point there may be the object itself (legs, an unsegmented part).
     let in_ring = |q: &Point3<f64>| {
-        others.iter().all(|&o| q[o] >= b.min[o] - margin && q[o] <= b.max[o] + margin) && others.iter().any(|&o| q[o] < b.min[o] || q[o] > b.max[o])
+        others
+            .iter()
+            .all(|&o| q[o] >= b.min[o] - margin && q[o] <= b.max[o] + margin)
+            && others.iter().any(|&o| q[o] < b.min[o] || q[o] > b.max[o])
     };
     let min_gap = -p.max_inside.max(0.5 * p.layer);
-    let mut cands: Vec<(f64, &Point3<f64>)> = ctx.iter().filter(|q| in_ring(q)).map(|q| (sign * (q[axis] - face), q)).filter(|(gap, _)| *gap >= min_gap && *gap <= max_gap).collect();
+    let mut cands: Vec<(f64, &Point3<f64>)> = ctx
+        .iter()
+        .filter(|q| in_ring(q))
+        .map(|q| (sign * (q[axis] - face), q))
+        .filter(|(gap, _)| *gap >= min_gap && *gap <= max_gap)
+        .collect();
     if cands.len() < p.min_points {
         return None;
     }
@@ -232,7 +276,11 @@ pub(crate) fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f6
                 // re-centre on the median of the points within one layer of it, twice.
                 let mut c = coord;
                 for _ in 0..2 {
-                    let mut v: Vec<f64> = cands.iter().map(|(_, q)| q[axis]).filter(|x| (x - c).abs() <= p.layer).collect();
+                    let mut v: Vec<f64> = cands
+                        .iter()
+                        .map(|(_, q)| q[axis])
+                        .filter(|x| (x - c).abs() <= p.layer)
+                        .collect();
                     if v.is_empty() {
                         break;
                     }
@@ -247,13 +295,22 @@ pub(crate) fn find_layer(b: &Aabb, ctx: &[Point3<f64>], (axis, sign): (usize, f6
 }
 
 /// Spread and coverage tests of one candidate layer; its coordinate and size when it passes.
-fn accept_layer(b: &Aabb, layer: &[(f64, &Point3<f64>)], (axis, others): (usize, [usize; 2]), margin: f64, p: &SupportParams) -> Option<(f64, usize)> {
+fn accept_layer(
+    b: &Aabb,
+    layer: &[(f64, &Point3<f64>)],
+    (axis, others): (usize, [usize; 2]),
+    margin: f64,
+    p: &SupportParams,
+) -> Option<(f64, usize)> {
     for &o in &others {
         let mut v: Vec<f64> = layer.iter().map(|(_, q)| q[o]).collect();
         v.sort_by(f64::total_cmp);
         let spread = percentile(&v, 0.9) - percentile(&v, 0.1);
         // Never below 1.5 layers: a slab of zero thickness must not accept a line.
-        let need = p.min_spread.min(0.5 * (b.max[o] - b.min[o])).max(1.5 * p.layer);
+        let need = p
+            .min_spread
+            .min(0.5 * (b.max[o] - b.min[o]))
+            .max(1.5 * p.layer);
         if spread < need {
             return None;
         }
@@ -261,7 +318,10 @@ fn accept_layer(b: &Aabb, layer: &[(f64, &Point3<f64>)], (axis, others): (usize,
     // Coverage of the ring around the box's footprint (the object hides its own footprint
     // on a wall behind it or a floor below it; a slice through legs lies inside it).
     let cell = |v: f64| (v / p.voxel).floor() as i64;
-    let cells: HashSet<(i64, i64)> = layer.iter().map(|(_, q)| (cell(q[others[0]]), cell(q[others[1]]))).collect();
+    let cells: HashSet<(i64, i64)> = layer
+        .iter()
+        .map(|(_, q)| (cell(q[others[0]]), cell(q[others[1]])))
+        .collect();
     let n = |o: usize, m: f64| ((b.max[o] - b.min[o] + 2.0 * m) / p.voxel).max(0.0);
     let ring = n(others[0], margin) * n(others[1], margin) - n(others[0], 0.0) * n(others[1], 0.0);
     if cells.len() < p.min_points || (cells.len() as f64) < p.min_coverage * ring {
@@ -283,13 +343,19 @@ pub fn median_point(points: &[Point3<f64>]) -> Option<[f64; 3]> {
 /// frame and the depth measured there lies beyond it by more than the visibility tolerance
 /// of `params`. Points are a grid of at most 12 per axis, inset by a tenth of the gap's
 /// extent on each side (rays grazing the object's own edges prove nothing).
-pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], params: &GeometryParams) -> f64 {
+pub fn observed_free_fraction(
+    gap: &Aabb,
+    views: &[(&FrameCamera, &DepthMap)],
+    params: &GeometryParams,
+) -> f64 {
     let step = params.support.free_step.max(1e-3);
     let axis_samples = |i: usize| -> Vec<f64> {
         let (lo, hi) = (gap.min[i], gap.max[i]);
         let inset = 0.1 * (hi - lo);
         let n = (((hi - lo) / step).round() as usize).clamp(1, 12);
-        (0..n).map(|k| lo + inset + (hi - lo - 2.0 * inset) * (k as f64 + 0.5) / n as f64).collect()
+        (0..n)
+            .map(|k| lo + inset + (hi - lo - 2.0 * inset) * (k as f64 + 0.5) / n as f64)
+            .collect()
     };
     let (xs, ys, zs) = (axis_samples(0), axis_samples(1), axis_samples(2));
     let mut samples = Vec::with_capacity(xs.len() * ys.len() * zs.len());
@@ -300,10 +366,14 @@ pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], p
     }
     let mut free = vec![false; samples.len()];
     for (cam, depth) in views {
-        let Ok(proj) = project_points(&samples, cam, depth, params) else { continue };
+        let Ok(proj) = project_points(&samples, cam, depth, params) else {
+            continue;
+        };
         for (f, q) in free.iter_mut().zip(&proj) {
             if let Some(q) = q {
-                *f |= q.measured.is_some_and(|d| d > q.z + params.visibility_tolerance(q.z));
+                *f |= q
+                    .measured
+                    .is_some_and(|d| d > q.z + params.visibility_tolerance(q.z));
             }
         }
     }
@@ -320,7 +390,14 @@ pub fn observed_free_fraction(gap: &Aabb, views: &[(&FrameCamera, &DepthMap)], p
 /// frames in `views`. With
 /// `down` false (an object that hangs on a wall) the bottom face stays. Returns the new box
 /// and the faces that moved.
-pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], views: &[(&FrameCamera, &DepthMap)], down: bool, params: &GeometryParams) -> (Aabb, Vec<SupportExtension>) {
+pub fn extend_to_support(
+    b: &Aabb,
+    bulk: [f64; 3],
+    context: &[Point3<f64>],
+    views: &[(&FrameCamera, &DepthMap)],
+    down: bool,
+    params: &GeometryParams,
+) -> (Aabb, Vec<SupportExtension>) {
     let p = &params.support;
     let mut out = *b;
     let mut moved = Vec::new();
@@ -333,20 +410,26 @@ pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], view
             continue;
         }
         let face = if sign < 0.0 { b.min[axis] } else { b.max[axis] };
-        let near_gap = if axis == 2 { p.max_gap_down } else { p.max_gap_side };
+        let near_gap = if axis == 2 {
+            p.max_gap_down
+        } else {
+            p.max_gap_side
+        };
         // A near support moves the face out onto it, or back onto it from inside the box.
-        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p).filter(|(c, _)| (c - face).abs() > 1e-9 && sign * (c - bulk[axis]) > 0.0).and_then(|(c, n)| {
-            // A side gap wider than a layer is crossed only when it was not seen empty
-            // (a lamp standing a hand's width from the wall is not against it).
-            if axis == 2 || sign * (c - face) <= p.layer {
-                return Some((c, n, None));
-            }
-            let mut slab = *b;
-            slab.min[axis] = face.min(c);
-            slab.max[axis] = face.max(c);
-            let free = observed_free_fraction(&slab, views, params);
-            (free <= p.max_free).then_some((c, n, Some(free)))
-        });
+        let near = find_layer(b, context, (axis, sign), near_gap, p.margin, p)
+            .filter(|(c, _)| (c - face).abs() > 1e-9 && sign * (c - bulk[axis]) > 0.0)
+            .and_then(|(c, n)| {
+                // A side gap wider than a layer is crossed only when it was not seen empty
+                // (a lamp standing a hand's width from the wall is not against it).
+                if axis == 2 || sign * (c - face) <= p.layer {
+                    return Some((c, n, None));
+                }
+                let mut slab = *b;
+                slab.min[axis] = face.min(c);
+                slab.max[axis] = face.max(c);
+                let free = observed_free_fraction(&slab, views, params);
+                (free <= p.max_free).then_some((c, n, Some(free)))
+            });
         let found = near.or_else(|| {
             // A wall further back, joined only when no frame saw the gap empty.
             if axis == 2 || p.max_gap_far <= p.max_gap_side {
@@ -370,7 +453,14 @@ pub fn extend_to_support(b: &Aabb, bulk: [f64; 3], context: &[Point3<f64>], view
         } else {
             out.max[axis] = coord;
         }
-        moved.push(SupportExtension { axis: NAMES[axis], side: if sign < 0.0 { "min" } else { "max" }, from: face, to: coord, points, seen_empty });
+        moved.push(SupportExtension {
+            axis: NAMES[axis],
+            side: if sign < 0.0 { "min" } else { "max" },
+            from: face,
+            to: coord,
+            points,
+            seen_empty,
+        });
     }
     (out, moved)
 }
@@ -387,7 +477,13 @@ mod tests {
     }
 
     /// Points on a grid over [a0, a1] x [b0, b1] along axes (i, j), constant `c` on axis k.
-    fn plane(k: usize, c: f64, (i, a0, a1): (usize, f64, f64), (j, b0, b1): (usize, f64, f64), step: f64) -> Vec<Point3<f64>> {
+    fn plane(
+        k: usize,
+        c: f64,
+        (i, a0, a1): (usize, f64, f64),
+        (j, b0, b1): (usize, f64, f64),
+        step: f64,
+    ) -> Vec<Point3<f64>> {
         crate::geometry::test_grid::grid((a0, a1), (b0, b1), step, |a, b| {
             let mut p = Point3::origin();
             p[k] = c;
@@ -417,7 +513,10 @@ mod tests {
         wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
         let (e, moved) = extend_to_support(&b, b.center(), &wall, &[], true, &gp());
         assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?}");
-        assert_eq!(e.min, b.min, "the wall below the picture is no floor: {moved:?}");
+        assert_eq!(
+            e.min, b.min,
+            "the wall below the picture is no floor: {moved:?}"
+        );
         assert_eq!(moved.len(), 1);
     }
 
@@ -439,23 +538,48 @@ mod tests {
         assert_eq!((e, moved.len()), (b, 0));
         // A wall 0.9 m behind the box is beyond even the far gap.
         let wall = plane(1, 2.4, (0, 0.9, 1.6), (2, 0.4, 1.0), 0.02);
-        assert_eq!(extend_to_support(&b, b.center(), &wall, &[], true, &gp()).0, b);
+        assert_eq!(
+            extend_to_support(&b, b.center(), &wall, &[], true, &gp()).0,
+            b
+        );
         // A floor patch of a few points is not enough.
         let patch = plane(2, 0.0, (0, 1.1, 1.14), (1, 1.1, 1.14), 0.02);
-        assert_eq!(extend_to_support(&b, b.center(), &patch, &[], true, &gp()).0, b);
+        assert_eq!(
+            extend_to_support(&b, b.center(), &patch, &[], true, &gp()).0,
+            b
+        );
         // Disabled: nothing moves.
         let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
         let mut off = gp();
         off.support.enabled = false;
-        assert_eq!(extend_to_support(&b, b.center(), &floor, &[], true, &off).0, b);
+        assert_eq!(
+            extend_to_support(&b, b.center(), &floor, &[], true, &off).0,
+            b
+        );
     }
 
     /// An 80x60 pinhole camera at `eye` looking at `target`, depth everywhere `depth_m`.
     fn view(eye: [f64; 3], target: [f64; 3], depth_m: f64) -> (FrameCamera, DepthMap) {
-        let color = Intrinsics { fx: 100.0, fy: 100.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
+        let color = Intrinsics {
+            fx: 100.0,
+            fy: 100.0,
+            cx: 39.5,
+            cy: 29.5,
+            width: 80,
+            height: 60,
+        };
         let pose = look_at_pose(Point3::from(eye), Point3::from(target), Vector3::z());
-        let cam = FrameCamera { color, depth: None, depth_size: (80, 60), pose, align: Matrix4::identity() };
-        (cam, DepthMap::new(80, 60, vec![(depth_m * 1000.0) as u16; 80 * 60]))
+        let cam = FrameCamera {
+            color,
+            depth: None,
+            depth_size: (80, 60),
+            pose,
+            align: Matrix4::identity(),
+        };
+        (
+            cam,
+            DepthMap::new(80, 60, vec![(depth_m * 1000.0) as u16; 80 * 60]),
+        )
     }
 
     #[test]
@@ -477,11 +601,17 @@ mod tests {
         assert_eq!(observed_free_fraction(&slab, &hidden, &gp()), 0.0);
         let seen = [(&front.0, &front.1), (&side.0, &side.1)];
         assert!(observed_free_fraction(&slab, &seen, &gp()) > 0.9);
-        assert_eq!(extend_to_support(&b, b.center(), &wall, &seen, true, &gp()).0, b);
+        assert_eq!(
+            extend_to_support(&b, b.center(), &wall, &seen, true, &gp()).0,
+            b
+        );
         // With the far gap off, the front view alone moves nothing either.
         let mut near_only = gp();
         near_only.support.max_gap_far = 0.0;
-        assert_eq!(extend_to_support(&b, b.center(), &wall, &hidden, true, &near_only).0, b);
+        assert_eq!(
+            extend_to_support(&b, b.center(), &wall, &hidden, true, &near_only).0,
+            b
+        );
     }
 
     #[test]
@@ -495,11 +625,25 @@ mod tests {
         assert!(e.min[1].abs() < 1e-9, "{e:?}");
         // A frame looking along the wall through the gap reads the far end of the room.
         let side = view([-1.0, 0.045, 0.75], [1.15, 0.045, 0.75], 6.0);
-        let (e, moved) = extend_to_support(&b, b.center(), &wall, &[(&side.0, &side.1)], true, &gp());
+        let (e, moved) =
+            extend_to_support(&b, b.center(), &wall, &[(&side.0, &side.1)], true, &gp());
         assert_eq!(e.min[1], 0.09, "{moved:?}");
         // A gap within one layer is noise and is closed whatever the frames saw.
         let touching = Aabb::new([1.0, 0.03, 0.55], [1.3, 0.35, 0.95]);
-        assert!(extend_to_support(&touching, touching.center(), &wall, &[(&side.0, &side.1)], true, &gp()).0.min[1].abs() < 1e-9);
+        assert!(
+            extend_to_support(
+                &touching,
+                touching.center(),
+                &wall,
+                &[(&side.0, &side.1)],
+                true,
+                &gp()
+            )
+            .0
+            .min[1]
+                .abs()
+                < 1e-9
+        );
     }
 
     #[test]
@@ -542,7 +686,14 @@ mod tests {
         let (e, moved) = extend_to_support(&b, bulk, &wall, &[], true, &gp());
         assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?} {moved:?}");
         assert_eq!((e.min, moved.len()), (b.min, 1));
-        assert_eq!(median_point(&[Point3::new(0.0, 5.0, 1.0), Point3::new(2.0, 1.0, 0.0), Point3::new(1.0, 3.0, 9.0)]), Some([1.0, 3.0, 1.0]));
+        assert_eq!(
+            median_point(&[
+                Point3::new(0.0, 5.0, 1.0),
+                Point3::new(2.0, 1.0, 0.0),
+                Point3::new(1.0, 3.0, 9.0)
+            ]),
+            Some([1.0, 3.0, 1.0])
+        );
         assert_eq!(median_point(&[]), None);
     }
 
@@ -553,13 +704,29 @@ mod tests {
         let b = Aabb::new([0.7, 6.05, 0.97], [1.9, 6.1, 2.17]);
         let top = plane(2, 0.54, (0, 0.5, 2.1), (1, 5.6, 6.1), 0.02);
         let p = gp();
-        assert!(p.support.hangs("window") && p.support.hangs("Framed Pictures") && p.support.hangs("white board"));
+        assert!(
+            p.support.hangs("window")
+                && p.support.hangs("Framed Pictures")
+                && p.support.hangs("white board")
+        );
         assert!(!p.support.hangs("chair") && !p.support.hangs("window seat"));
-        assert!(p.support.is_flat("wooden doors") && p.support.is_flat("picture") && !p.support.hangs("door"));
-        assert!(!p.support.is_flat("chair") && !p.support.is_flat("lamp") && !p.support.is_flat("door knob"));
+        assert!(
+            p.support.is_flat("wooden doors")
+                && p.support.is_flat("picture")
+                && !p.support.hangs("door")
+        );
+        assert!(
+            !p.support.is_flat("chair")
+                && !p.support.is_flat("lamp")
+                && !p.support.is_flat("door knob")
+        );
         let (moved_box, _) = extend_to_support(&b, b.center(), &top, &[], true, &p);
-        assert!((moved_box.min[2] - 0.54).abs() < 0.02, "a resting object would move: {moved_box:?}");
-        let (e, moved) = extend_to_support(&b, b.center(), &top, &[], !p.support.hangs("window"), &p);
+        assert!(
+            (moved_box.min[2] - 0.54).abs() < 0.02,
+            "a resting object would move: {moved_box:?}"
+        );
+        let (e, moved) =
+            extend_to_support(&b, b.center(), &top, &[], !p.support.hangs("window"), &p);
         assert_eq!((e, moved.len()), (b, 0));
     }
 }

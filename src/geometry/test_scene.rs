@@ -9,9 +9,22 @@ use super::{DepthMap, FrameCamera, Intrinsics};
 
 /// Colour 80x60, depth 40x30 (ratio rule, no depth K).
 pub(crate) fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
-    let color = Intrinsics { fx: 60.0, fy: 60.0, cx: 39.5, cy: 29.5, width: 80, height: 60 };
+    let color = Intrinsics {
+        fx: 60.0,
+        fy: 60.0,
+        cx: 39.5,
+        cy: 29.5,
+        width: 80,
+        height: 60,
+    };
     let pose = look_at_pose(Point3::from(eye), Point3::from(target), Vector3::z());
-    FrameCamera { color, depth: None, depth_size: (40, 30), pose, align: Matrix4::identity() }
+    FrameCamera {
+        color,
+        depth: None,
+        depth_size: (40, 30),
+        pose,
+        align: Matrix4::identity(),
+    }
 }
 
 /// Depth of a scene of axis-aligned boxes `[min, max]` seen by `cam`, with readings beyond
@@ -50,4 +63,3 @@ pub(crate) fn render(cam: &FrameCamera, boxes: &[([f64; 3], [f64; 3])], range: f
     }
     DepthMap::new(w, h, data)
 }
-

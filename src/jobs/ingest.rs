@@ -14,7 +14,11 @@ pub struct Cleanup(pub Option<PathBuf>);
 impl Drop for Cleanup {
     fn drop(&mut self) {
         if let Some(p) = self.0.take() {
-            let _ = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+            let _ = if p.is_dir() {
+                std::fs::remove_dir_all(&p)
+            } else {
+                std::fs::remove_file(&p)
+            };
         }
     }
 }
@@ -27,14 +31,23 @@ impl Cleanup {
 
 /// Unpack, validate and lay out a scene's files under `scene_dir`; returns what the store
 /// records. `scene_dir` is removed again on any error.
-pub fn prepare_scene(upload: &Path, content_type: Option<&str>, work_dir: &Path, scene_dir: &Path, limits: Limits) -> Result<ImportedScene, SceneError> {
+pub fn prepare_scene(
+    upload: &Path,
+    content_type: Option<&str>,
+    work_dir: &Path,
+    scene_dir: &Path,
+    limits: Limits,
+) -> Result<ImportedScene, SceneError> {
     let mut head = [0u8; 512];
     let n = {
         use std::io::Read;
-        let mut f = std::fs::File::open(upload).map_err(|e| SceneError::Io(format!("cannot reopen upload: {e}")))?;
+        let mut f = std::fs::File::open(upload)
+            .map_err(|e| SceneError::Io(format!("cannot reopen upload: {e}")))?;
         let mut total = 0;
         while total < head.len() {
-            let k = f.read(&mut head[total..]).map_err(|e| SceneError::Io(format!("cannot read upload: {e}")))?;
+            let k = f
+                .read(&mut head[total..])
+                .map_err(|e| SceneError::Io(format!("cannot read upload: {e}")))?;
             if k == 0 {
                 break;
             }
@@ -43,10 +56,13 @@ pub fn prepare_scene(upload: &Path, content_type: Option<&str>, work_dir: &Path,
         total
     };
     if n == 0 {
-        return Err(SceneError::NotArchive("the request body is empty; send a tar, tar.gz or zip archive of one scene".into()));
+        return Err(SceneError::NotArchive(
+            "the request body is empty; send a tar, tar.gz or zip archive of one scene".into(),
+        ));
     }
     let kind: ArchiveKind = archive::sniff(&head[..n], content_type)?;
-    std::fs::create_dir_all(work_dir).map_err(|e| SceneError::Io(format!("cannot create work dir: {e}")))?;
+    std::fs::create_dir_all(work_dir)
+        .map_err(|e| SceneError::Io(format!("cannot create work dir: {e}")))?;
     let _work = Cleanup(Some(work_dir.to_path_buf()));
     archive::unpack(upload, kind, work_dir, limits)?;
     let root = format::find_scene_root(work_dir)?;
@@ -55,27 +71,38 @@ pub fn prepare_scene(upload: &Path, content_type: Option<&str>, work_dir: &Path,
 
     let mut guard = Cleanup(Some(scene_dir.to_path_buf()));
     let color_dir = scene_dir.join("color");
-    std::fs::create_dir_all(&color_dir).map_err(|e| SceneError::Io(format!("cannot create scene dir: {e}")))?;
+    std::fs::create_dir_all(&color_dir)
+        .map_err(|e| SceneError::Io(format!("cannot create scene dir: {e}")))?;
     let mut has_instance = false;
     for f in &mut scene.frames {
         let dest = color_dir.join(format!("{}.jpg", f.idx));
-        std::fs::rename(&f.color_path, &dest).map_err(|e| SceneError::Io(format!("cannot store frame {}: {e}", f.name)))?;
+        std::fs::rename(&f.color_path, &dest)
+            .map_err(|e| SceneError::Io(format!("cannot store frame {}: {e}", f.name)))?;
         f.color_path = dest;
         if let Some(inst) = f.instance_path.take() {
             let dir = scene_dir.join("instance");
-            std::fs::create_dir_all(&dir).map_err(|e| SceneError::Io(format!("cannot create instance dir: {e}")))?;
+            std::fs::create_dir_all(&dir)
+                .map_err(|e| SceneError::Io(format!("cannot create instance dir: {e}")))?;
             let dest = dir.join(format!("{}.png", f.idx));
-            std::fs::rename(&inst, &dest).map_err(|e| SceneError::Io(format!("cannot store instance mask {}: {e}", f.name)))?;
+            std::fs::rename(&inst, &dest).map_err(|e| {
+                SceneError::Io(format!("cannot store instance mask {}: {e}", f.name))
+            })?;
             f.instance_path = Some(dest);
             has_instance = true;
         }
     }
     if let (true, Some(labels)) = (has_instance, scene.instance_labels.take()) {
-        let text = std::fs::read_to_string(&labels).map_err(|e| SceneError::Malformed(format!("instance/labels.json: {e}")))?;
-        let parsed: std::collections::BTreeMap<String, String> =
-            serde_json::from_str(&text).map_err(|e| SceneError::Malformed(format!("instance/labels.json is not a JSON object of id -> label: {e}")))?;
+        let text = std::fs::read_to_string(&labels)
+            .map_err(|e| SceneError::Malformed(format!("instance/labels.json: {e}")))?;
+        let parsed: std::collections::BTreeMap<String, String> = serde_json::from_str(&text)
+            .map_err(|e| {
+                SceneError::Malformed(format!(
+                    "instance/labels.json is not a JSON object of id -> label: {e}"
+                ))
+            })?;
         let dest = scene_dir.join("instance").join("labels.json");
-        std::fs::write(&dest, serde_json::to_vec(&parsed).unwrap_or_default()).map_err(|e| SceneError::Io(format!("cannot store labels: {e}")))?;
+        std::fs::write(&dest, serde_json::to_vec(&parsed).unwrap_or_default())
+            .map_err(|e| SceneError::Io(format!("cannot store labels: {e}")))?;
         scene.instance_labels = Some(dest);
     }
     guard.disarm();

@@ -40,7 +40,10 @@ pub struct JobFailure {
 
 impl JobFailure {
     pub fn new(code: &str, detail: impl Into<String>) -> Self {
-        Self { code: code.to_string(), detail: detail.into() }
+        Self {
+            code: code.to_string(),
+            detail: detail.into(),
+        }
     }
 }
 
@@ -54,7 +57,11 @@ pub struct TraceSink {
 
 impl TraceSink {
     pub fn new(store: Store, job_id: String, artifact_dir: PathBuf) -> Self {
-        Self { store, job_id, artifact_dir }
+        Self {
+            store,
+            job_id,
+            artifact_dir,
+        }
     }
 
     /// Append a step (an object; `step` is added). Trace failures are logged, not fatal.
@@ -66,9 +73,15 @@ impl TraceSink {
 
     /// Store an artifact (e.g. a stitched JPEG) and return its URL path.
     pub async fn artifact(&self, name: &str, bytes: Vec<u8>) -> Result<String, JobFailure> {
-        let safe = name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.')) && !name.starts_with('.');
+        let safe = name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+            && !name.starts_with('.');
         if !safe {
-            return Err(JobFailure::new("internal", format!("invalid artifact name {name:?}")));
+            return Err(JobFailure::new(
+                "internal",
+                format!("invalid artifact name {name:?}"),
+            ));
         }
         let dir = self.artifact_dir.clone();
         let path = dir.join(name);
@@ -78,7 +91,12 @@ impl TraceSink {
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("artifact writer failed: {e}")))?
-        .map_err(|e| JobFailure::new("storage_error", format!("cannot write artifact {name}: {e}")))?;
+        .map_err(|e| {
+            JobFailure::new(
+                "storage_error",
+                format!("cannot write artifact {name}: {e}"),
+            )
+        })?;
         Ok(format!("/v1/jobs/{}/artifacts/{name}", self.job_id))
     }
 
@@ -151,6 +169,10 @@ impl RunningJobs {
         }
     }
     pub fn cancel(&self, id: &str) -> bool {
-        self.inner.lock().ok().and_then(|g| g.get(id).map(|t| t.cancel())).is_some()
+        self.inner
+            .lock()
+            .ok()
+            .and_then(|g| g.get(id).map(|t| t.cancel()))
+            .is_some()
     }
 }

@@ -21,7 +21,12 @@ impl TestGrounder {
         if let Some(rest) = spec.strip_prefix("test:") {
             for kv in rest.split(',') {
                 match kv.split_once('=') {
-                    Some(("delay_ms", v)) => delay = Duration::from_millis(v.parse().map_err(|_| anyhow::anyhow!("bad delay_ms {v:?}"))?),
+                    Some(("delay_ms", v)) => {
+                        delay = Duration::from_millis(
+                            v.parse()
+                                .map_err(|_| anyhow::anyhow!("bad delay_ms {v:?}"))?,
+                        )
+                    }
                     _ => anyhow::bail!("unknown test pipeline option {kv:?} (known: delay_ms=N)"),
                 }
             }
@@ -33,9 +38,17 @@ impl TestGrounder {
 impl Grounder for TestGrounder {
     fn ground(&self, ctx: JobContext) -> BoxFuture<'_, Result<GroundingOutput, JobFailure>> {
         Box::pin(async move {
-            ctx.trace.step("start", json!({"query": ctx.query, "frames": ctx.scene.frames.len()})).await;
+            ctx.trace
+                .step(
+                    "start",
+                    json!({"query": ctx.query, "frames": ctx.scene.frames.len()}),
+                )
+                .await;
             if ctx.query.contains("[fail]") {
-                return Err(JobFailure::new("no_target_found", "the test pipeline fails queries containing [fail]"));
+                return Err(JobFailure::new(
+                    "no_target_found",
+                    "the test pipeline fails queries containing [fail]",
+                ));
             }
             tokio::select! {
                 _ = tokio::time::sleep(self.delay) => {}
@@ -46,9 +59,16 @@ impl Grounder for TestGrounder {
                 .usable_frames()
                 .map(|f| transform_point(&f.camera.cam_to_out(), &nalgebra::Point3::origin()))
                 .collect();
-            let bbox = Aabb::from_points(&centres).ok_or_else(|| JobFailure::new("no_usable_frames", "the scene has no usable frame"))?;
-            ctx.trace.step("done", json!({"cameras": centres.len()})).await;
-            Ok(GroundingOutput { bbox, extra: Default::default() })
+            let bbox = Aabb::from_points(&centres).ok_or_else(|| {
+                JobFailure::new("no_usable_frames", "the scene has no usable frame")
+            })?;
+            ctx.trace
+                .step("done", json!({"cameras": centres.len()}))
+                .await;
+            Ok(GroundingOutput {
+                bbox,
+                extra: Default::default(),
+            })
         })
     }
 }

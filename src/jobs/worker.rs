@@ -8,7 +8,9 @@ use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use super::{Grounder, GroundingOutput, JobContext, JobFailure, RunningJobs, SceneCache, TraceSink};
+use super::{
+    Grounder, GroundingOutput, JobContext, JobFailure, RunningJobs, SceneCache, TraceSink,
+};
 use crate::metrics::{Metrics, OutcomeLabels};
 use crate::store::{JobRecord, JobStatus, Store};
 
@@ -33,7 +35,12 @@ pub struct JobSystem {
 }
 
 impl JobSystem {
-    pub fn new(store: Store, grounder: Arc<dyn Grounder>, metrics: Arc<Metrics>, cfg: WorkerConfig) -> Self {
+    pub fn new(
+        store: Store,
+        grounder: Arc<dyn Grounder>,
+        metrics: Arc<Metrics>,
+        cfg: WorkerConfig,
+    ) -> Self {
         Self {
             store,
             grounder,
@@ -115,7 +122,12 @@ impl JobSystem {
             .load_scene(scene_id, &self.scene_dir(scene_id))
             .await
             .map_err(|e| JobFailure::new("storage_error", e.to_string()))?
-            .ok_or_else(|| JobFailure::new("scene_not_found", format!("scene {scene_id} no longer exists")))?;
+            .ok_or_else(|| {
+                JobFailure::new(
+                    "scene_not_found",
+                    format!("scene {scene_id} no longer exists"),
+                )
+            })?;
         let s = Arc::new(loaded);
         self.cache.put(scene_id, s.clone());
         Ok(s)
@@ -133,7 +145,11 @@ impl JobSystem {
                     query: job.query.clone(),
                     scene,
                     store: self.store.clone(),
-                    trace: TraceSink::new(self.store.clone(), job.id.clone(), self.artifact_dir(&job.id)),
+                    trace: TraceSink::new(
+                        self.store.clone(),
+                        job.id.clone(),
+                        self.artifact_dir(&job.id),
+                    ),
                     cancel: token.clone(),
                 };
                 self.grounder.ground(ctx).await
@@ -153,12 +169,25 @@ impl JobSystem {
         let written = match outcome {
             Ok(out) => {
                 outcome_label = "succeeded";
-                self.store.finish_job(&job.id, JobStatus::Succeeded, Some(&result_json(&out)), None).await
+                self.store
+                    .finish_job(
+                        &job.id,
+                        JobStatus::Succeeded,
+                        Some(&result_json(&out)),
+                        None,
+                    )
+                    .await
             }
             Err(f) => {
-                outcome_label = if f.code == "canceled" { "canceled" } else { "failed" };
+                outcome_label = if f.code == "canceled" {
+                    "canceled"
+                } else {
+                    "failed"
+                };
                 let err = json!({"code": f.code, "detail": f.detail});
-                self.store.finish_job(&job.id, JobStatus::Failed, None, Some(&err)).await
+                self.store
+                    .finish_job(&job.id, JobStatus::Failed, None, Some(&err))
+                    .await
             }
         };
         match written {
@@ -168,7 +197,9 @@ impl JobSystem {
         }
         self.metrics
             .job_duration
-            .get_or_create(&OutcomeLabels { outcome: outcome_label.to_string() })
+            .get_or_create(&OutcomeLabels {
+                outcome: outcome_label.to_string(),
+            })
             .observe(started.elapsed().as_secs_f64());
     }
 }
@@ -176,7 +207,8 @@ impl JobSystem {
 /// The API's `result` object: `box` with min, max, centre and size, plus extras.
 pub fn result_json(out: &GroundingOutput) -> Value {
     let b = &out.bbox;
-    let mut v = json!({"box": {"min": b.min, "max": b.max, "center": b.center(), "size": b.size()}});
+    let mut v =
+        json!({"box": {"min": b.min, "max": b.max, "center": b.center(), "size": b.size()}});
     if let Some(o) = v.as_object_mut() {
         for (k, x) in &out.extra {
             o.insert(k.clone(), x.clone());

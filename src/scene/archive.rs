@@ -53,10 +53,16 @@ fn safe_relative(path: &Path) -> Result<PathBuf, SceneError> {
             Component::Normal(p) => out.push(p),
             Component::CurDir => {}
             Component::ParentDir => {
-                return Err(SceneError::UnsafeArchive(format!("entry {:?} climbs out with '..'", path.display().to_string())))
+                return Err(SceneError::UnsafeArchive(format!(
+                    "entry {:?} climbs out with '..'",
+                    path.display().to_string()
+                )))
             }
             Component::RootDir | Component::Prefix(_) => {
-                return Err(SceneError::UnsafeArchive(format!("entry {:?} has an absolute path", path.display().to_string())))
+                return Err(SceneError::UnsafeArchive(format!(
+                    "entry {:?} has an absolute path",
+                    path.display().to_string()
+                )))
             }
         }
     }
@@ -73,7 +79,10 @@ impl Budget {
     fn entry(&mut self) -> Result<(), SceneError> {
         self.files += 1;
         if self.files > self.limits.max_files {
-            return Err(SceneError::TooLarge(format!("the archive holds more than {} entries", self.limits.max_files)));
+            return Err(SceneError::TooLarge(format!(
+                "the archive holds more than {} entries",
+                self.limits.max_files
+            )));
         }
         Ok(())
     }
@@ -81,83 +90,134 @@ impl Budget {
     /// Copy `r` into a new file at `dest`, counting against the byte cap.
     fn write_file(&mut self, r: &mut dyn Read, dest: &Path) -> Result<(), SceneError> {
         if let Some(parent) = dest.parent() {
-            std::fs::create_dir_all(parent).map_err(|e| SceneError::Io(format!("cannot create folder: {e}")))?;
+            std::fs::create_dir_all(parent)
+                .map_err(|e| SceneError::Io(format!("cannot create folder: {e}")))?;
         }
-        let mut f = File::create(dest).map_err(|e| SceneError::Io(format!("cannot write file: {e}")))?;
+        let mut f =
+            File::create(dest).map_err(|e| SceneError::Io(format!("cannot write file: {e}")))?;
         let mut buf = vec![0u8; 1 << 16];
         loop {
-            let n = r.read(&mut buf).map_err(|e| SceneError::Truncated(format!("archive cannot be read to the end: {e}")))?;
+            let n = r.read(&mut buf).map_err(|e| {
+                SceneError::Truncated(format!("archive cannot be read to the end: {e}"))
+            })?;
             if n == 0 {
                 break;
             }
             self.bytes += n as u64;
             if self.bytes > self.limits.max_bytes {
-                return Err(SceneError::TooLarge(format!("the archive unpacks to more than {} bytes", self.limits.max_bytes)));
+                return Err(SceneError::TooLarge(format!(
+                    "the archive unpacks to more than {} bytes",
+                    self.limits.max_bytes
+                )));
             }
-            f.write_all(&buf[..n]).map_err(|e| SceneError::Io(format!("cannot write file: {e}")))?;
+            f.write_all(&buf[..n])
+                .map_err(|e| SceneError::Io(format!("cannot write file: {e}")))?;
         }
         Ok(())
     }
 }
 
 /// Unpack `archive` (a file) into `dest` (an existing empty directory).
-pub fn unpack(archive: &Path, kind: ArchiveKind, dest: &Path, limits: Limits) -> Result<(), SceneError> {
-    let file = File::open(archive).map_err(|e| SceneError::Io(format!("cannot open upload: {e}")))?;
-    let mut budget = Budget { limits, bytes: 0, files: 0 };
+pub fn unpack(
+    archive: &Path,
+    kind: ArchiveKind,
+    dest: &Path,
+    limits: Limits,
+) -> Result<(), SceneError> {
+    let file =
+        File::open(archive).map_err(|e| SceneError::Io(format!("cannot open upload: {e}")))?;
+    let mut budget = Budget {
+        limits,
+        bytes: 0,
+        files: 0,
+    };
     match kind {
         ArchiveKind::Tar => unpack_tar(std::io::BufReader::new(file), dest, &mut budget),
-        ArchiveKind::TarGz => unpack_tar(flate2::read::GzDecoder::new(std::io::BufReader::new(file)), dest, &mut budget),
+        ArchiveKind::TarGz => unpack_tar(
+            flate2::read::GzDecoder::new(std::io::BufReader::new(file)),
+            dest,
+            &mut budget,
+        ),
         ArchiveKind::Zip => unpack_zip(file, dest, &mut budget),
     }
 }
 
 fn unpack_tar<R: Read>(r: R, dest: &Path, budget: &mut Budget) -> Result<(), SceneError> {
     let mut ar = tar::Archive::new(r);
-    let entries = ar.entries().map_err(|e| SceneError::Truncated(format!("not a readable tar archive: {e}")))?;
+    let entries = ar
+        .entries()
+        .map_err(|e| SceneError::Truncated(format!("not a readable tar archive: {e}")))?;
     let mut any = false;
     for entry in entries {
-        let mut entry = entry.map_err(|e| SceneError::Truncated(format!("tar archive is truncated or corrupt: {e}")))?;
+        let mut entry = entry.map_err(|e| {
+            SceneError::Truncated(format!("tar archive is truncated or corrupt: {e}"))
+        })?;
         any = true;
         budget.entry()?;
-        let path = entry.path().map_err(|e| SceneError::UnsafeArchive(format!("entry with an unreadable path: {e}")))?.into_owned();
+        let path = entry
+            .path()
+            .map_err(|e| SceneError::UnsafeArchive(format!("entry with an unreadable path: {e}")))?
+            .into_owned();
         let rel = safe_relative(&path)?;
         let kind = entry.header().entry_type();
         if kind.is_dir() {
-            std::fs::create_dir_all(dest.join(&rel)).map_err(|e| SceneError::Io(format!("cannot create folder: {e}")))?;
+            std::fs::create_dir_all(dest.join(&rel))
+                .map_err(|e| SceneError::Io(format!("cannot create folder: {e}")))?;
         } else if kind.is_file() {
             if rel.as_os_str().is_empty() {
                 continue;
             }
             budget.write_file(&mut entry, &dest.join(&rel))?;
         } else if kind.is_symlink() || kind.is_hard_link() {
-            return Err(SceneError::UnsafeArchive(format!("entry {:?} is a link; links are not accepted", path.display().to_string())));
-        } else if kind.is_pax_global_extensions() || kind.is_pax_local_extensions() || kind.is_gnu_longname() {
+            return Err(SceneError::UnsafeArchive(format!(
+                "entry {:?} is a link; links are not accepted",
+                path.display().to_string()
+            )));
+        } else if kind.is_pax_global_extensions()
+            || kind.is_pax_local_extensions()
+            || kind.is_gnu_longname()
+        {
             continue;
         } else {
-            return Err(SceneError::UnsafeArchive(format!("entry {:?} is not a regular file or folder", path.display().to_string())));
+            return Err(SceneError::UnsafeArchive(format!(
+                "entry {:?} is not a regular file or folder",
+                path.display().to_string()
+            )));
         }
     }
     if !any {
-        return Err(SceneError::Truncated("the tar archive holds no entries".into()));
+        return Err(SceneError::Truncated(
+            "the tar archive holds no entries".into(),
+        ));
     }
     Ok(())
 }
 
 fn unpack_zip(file: File, dest: &Path, budget: &mut Budget) -> Result<(), SceneError> {
-    let mut zip = zip::ZipArchive::new(file).map_err(|e| SceneError::Truncated(format!("zip archive is truncated or corrupt: {e}")))?;
+    let mut zip = zip::ZipArchive::new(file)
+        .map_err(|e| SceneError::Truncated(format!("zip archive is truncated or corrupt: {e}")))?;
     for i in 0..zip.len() {
         budget.entry()?;
-        let mut entry = zip.by_index(i).map_err(|e| SceneError::Truncated(format!("zip entry {i} cannot be read: {e}")))?;
+        let mut entry = zip
+            .by_index(i)
+            .map_err(|e| SceneError::Truncated(format!("zip entry {i} cannot be read: {e}")))?;
         let raw = PathBuf::from(entry.name());
         let rel = safe_relative(&raw)?;
         if entry.enclosed_name().is_none() {
-            return Err(SceneError::UnsafeArchive(format!("entry {:?} escapes the archive", entry.name())));
+            return Err(SceneError::UnsafeArchive(format!(
+                "entry {:?} escapes the archive",
+                entry.name()
+            )));
         }
         if entry.is_symlink() {
-            return Err(SceneError::UnsafeArchive(format!("entry {:?} is a link; links are not accepted", entry.name())));
+            return Err(SceneError::UnsafeArchive(format!(
+                "entry {:?} is a link; links are not accepted",
+                entry.name()
+            )));
         }
         if entry.is_dir() {
-            std::fs::create_dir_all(dest.join(&rel)).map_err(|e| SceneError::Io(format!("cannot create folder: {e}")))?;
+            std::fs::create_dir_all(dest.join(&rel))
+                .map_err(|e| SceneError::Io(format!("cannot create folder: {e}")))?;
         } else {
             budget.write_file(&mut entry, &dest.join(&rel))?;
         }
@@ -173,16 +233,25 @@ mod tests {
     fn rejects_parent_and_absolute_paths() {
         assert!(safe_relative(Path::new("a/../../etc/passwd")).is_err());
         assert!(safe_relative(Path::new("/etc/passwd")).is_err());
-        assert_eq!(safe_relative(Path::new("./scene/color/0.jpg")).unwrap(), PathBuf::from("scene/color/0.jpg"));
+        assert_eq!(
+            safe_relative(Path::new("./scene/color/0.jpg")).unwrap(),
+            PathBuf::from("scene/color/0.jpg")
+        );
     }
 
     #[test]
     fn sniffs_kinds() {
-        assert_eq!(sniff(&[0x1f, 0x8b, 8, 0], None).unwrap(), ArchiveKind::TarGz);
+        assert_eq!(
+            sniff(&[0x1f, 0x8b, 8, 0], None).unwrap(),
+            ArchiveKind::TarGz
+        );
         assert_eq!(sniff(b"PK\x03\x04rest", None).unwrap(), ArchiveKind::Zip);
         let mut tar = vec![0u8; 512];
         tar[257..262].copy_from_slice(b"ustar");
         assert_eq!(sniff(&tar, None).unwrap(), ArchiveKind::Tar);
-        assert!(matches!(sniff(b"hello world", Some("text/plain")), Err(SceneError::NotArchive(_))));
+        assert!(matches!(
+            sniff(b"hello world", Some("text/plain")),
+            Err(SceneError::NotArchive(_))
+        ));
     }
 }

@@ -52,7 +52,12 @@ pub struct SceneFiles {
 /// Non-finite values ("nan", "inf", "-inf") are parsed; callers decide what they mean.
 pub fn parse_matrix(text: &str, what: &str) -> Result<Matrix4<f64>, SceneError> {
     let nums: Result<Vec<f64>, _> = text.split_whitespace().map(|t| t.parse::<f64>()).collect();
-    let nums = nums.map_err(|_| SceneError::Malformed(format!("{what}: expected numbers, found {:?}", first_bad(text))))?;
+    let nums = nums.map_err(|_| {
+        SceneError::Malformed(format!(
+            "{what}: expected numbers, found {:?}",
+            first_bad(text)
+        ))
+    })?;
     match nums.len() {
         16 => Ok(Matrix4::from_row_slice(&nums)),
         9 => {
@@ -64,7 +69,9 @@ pub fn parse_matrix(text: &str, what: &str) -> Result<Matrix4<f64>, SceneError> 
             }
             Ok(m)
         }
-        n => Err(SceneError::Malformed(format!("{what}: expected a 4x4 matrix (16 numbers), found {n}"))),
+        n => Err(SceneError::Malformed(format!(
+            "{what}: expected a 4x4 matrix (16 numbers), found {n}"
+        ))),
     }
 }
 
@@ -79,11 +86,17 @@ pub fn parse_axis_align(text: &str, what: &str) -> Result<Matrix4<f64>, SceneErr
 }
 
 fn first_bad(text: &str) -> String {
-    text.split_whitespace().find(|t| t.parse::<f64>().is_err()).unwrap_or("").chars().take(32).collect()
+    text.split_whitespace()
+        .find(|t| t.parse::<f64>().is_err())
+        .unwrap_or("")
+        .chars()
+        .take(32)
+        .collect()
 }
 
 pub fn read_matrix(path: &Path, what: &str) -> Result<Matrix4<f64>, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SceneError::Malformed(format!("{what}: cannot read: {e}")))?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| SceneError::Malformed(format!("{what}: cannot read: {e}")))?;
     parse_matrix(&text, what)
 }
 
@@ -106,12 +119,21 @@ fn stems_with_ext(dir: &Path, exts: &[&str]) -> Result<Vec<(u64, String, PathBuf
         if !path.is_file() {
             continue;
         }
-        let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
         let Some(ext) = ext else { continue };
         if !exts.contains(&ext.as_str()) {
             continue;
         }
-        let Some(stem) = path.file_stem().and_then(|s| s.to_str()).map(str::to_string) else { continue };
+        let Some(stem) = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .map(str::to_string)
+        else {
+            continue;
+        };
         if let Some(n) = frame_number(&stem) {
             out.push((n, stem, path));
         }
@@ -130,7 +152,12 @@ pub fn find_scene_root(dir: &Path) -> Result<PathBuf, SceneError> {
         .map_err(|e| SceneError::Malformed(format!("cannot list archive contents: {e}")))?
         .flatten()
         .map(|e| e.path())
-        .filter(|p| p.is_dir() && !p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("__MACOSX")))
+        .filter(|p| {
+            p.is_dir()
+                && !p
+                    .file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with("__MACOSX"))
+        })
         .collect();
     if subdirs.len() == 1 && detect_layout(&subdirs[0]).is_some() {
         return Ok(subdirs[0].clone());
@@ -159,7 +186,13 @@ pub fn scan(root: &Path) -> Result<SceneFiles, SceneError> {
             root.join("intrinsic").join("intrinsic_color.txt"),
             Some(root.join("intrinsic").join("intrinsic_depth.txt")),
         ),
-        Layout::Posed => (root.to_path_buf(), root.to_path_buf(), root.to_path_buf(), root.join("intrinsic.txt"), None),
+        Layout::Posed => (
+            root.to_path_buf(),
+            root.to_path_buf(),
+            root.to_path_buf(),
+            root.join("intrinsic.txt"),
+            None,
+        ),
     };
     if !intr.is_file() {
         return Err(SceneError::Malformed(format!(
@@ -175,19 +208,36 @@ pub fn scan(root: &Path) -> Result<SceneFiles, SceneError> {
     let depths = stems_with_ext(&depth_dir, depth_ext)?;
     let poses = stems_with_ext(&pose_dir, &["txt"])?;
     let instance_dir = root.join("instance");
-    let instances = if layout == Layout::Scannet { stems_with_ext(&instance_dir, &["png"])? } else { Vec::new() };
-    let find = |list: &[(u64, String, PathBuf)], stem: &str| list.iter().find(|x| x.1 == stem).map(|x| x.2.clone());
+    let instances = if layout == Layout::Scannet {
+        stems_with_ext(&instance_dir, &["png"])?
+    } else {
+        Vec::new()
+    };
+    let find = |list: &[(u64, String, PathBuf)], stem: &str| {
+        list.iter().find(|x| x.1 == stem).map(|x| x.2.clone())
+    };
     let mut frames = Vec::with_capacity(colors.len());
     for (n, stem, path) in colors {
         let depth = find(&depths, &stem);
         let pose = find(&poses, &stem);
         if depth.is_none() {
-            return Err(SceneError::Malformed(format!("frame {stem}: colour image has no depth image")));
+            return Err(SceneError::Malformed(format!(
+                "frame {stem}: colour image has no depth image"
+            )));
         }
         if pose.is_none() {
-            return Err(SceneError::Malformed(format!("frame {stem}: colour image has no pose file")));
+            return Err(SceneError::Malformed(format!(
+                "frame {stem}: colour image has no pose file"
+            )));
         }
-        frames.push(FrameFiles { name: stem.clone(), number: n, color: path, depth, pose, instance: find(&instances, &stem) });
+        frames.push(FrameFiles {
+            name: stem.clone(),
+            number: n,
+            color: path,
+            depth,
+            pose,
+            instance: find(&instances, &stem),
+        });
     }
     let axis = root.join("axis_align_matrix.txt");
     let labels = instance_dir.join("labels.json");
@@ -217,7 +267,8 @@ mod tests {
         assert!(e.contains("pose 7") && e.contains("\"x\""), "{e}");
         let e = parse_matrix("1 2 3", "K").unwrap_err().to_string();
         assert!(e.contains("found 3"), "{e}");
-        let a = parse_axis_align("axisAlignment = 1 0 0 5 0 1 0 0 0 0 1 0 0 0 0 1\n", "align").unwrap();
+        let a =
+            parse_axis_align("axisAlignment = 1 0 0 5 0 1 0 0 0 0 1 0 0 0 0 1\n", "align").unwrap();
         assert_eq!(a[(0, 3)], 5.0);
     }
 }

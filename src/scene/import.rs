@@ -39,17 +39,23 @@ pub struct ImportedScene {
 
 impl ImportedScene {
     pub fn unusable_names(&self) -> Vec<String> {
-        self.frames.iter().filter(|f| !f.usable).map(|f| f.name.clone()).collect()
+        self.frames
+            .iter()
+            .filter(|f| !f.usable)
+            .map(|f| f.name.clone())
+            .collect()
     }
 }
 
 fn image_size(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {
-    image::image_dimensions(path).map_err(|e| SceneError::BadImage(format!("{what}: unreadable image: {e}")))
+    image::image_dimensions(path)
+        .map_err(|e| SceneError::BadImage(format!("{what}: unreadable image: {e}")))
 }
 
 /// Decode a 16-bit depth PNG.
 pub fn read_depth_png(path: &Path, what: &str) -> Result<DepthMap, SceneError> {
-    let file = std::fs::File::open(path).map_err(|e| SceneError::BadImage(format!("{what}: cannot open: {e}")))?;
+    let file = std::fs::File::open(path)
+        .map_err(|e| SceneError::BadImage(format!("{what}: cannot open: {e}")))?;
     let dec = image::codecs::png::PngDecoder::new(BufReader::new(file))
         .map_err(|e| SceneError::BadImage(format!("{what}: not a readable PNG: {e}")))?;
     if dec.color_type() != image::ColorType::L16 {
@@ -60,18 +66,29 @@ pub fn read_depth_png(path: &Path, what: &str) -> Result<DepthMap, SceneError> {
     }
     let (w, h) = dec.dimensions();
     let mut buf = vec![0u8; dec.total_bytes() as usize];
-    dec.read_image(&mut buf).map_err(|e| SceneError::BadImage(format!("{what}: truncated or corrupt PNG: {e}")))?;
+    dec.read_image(&mut buf)
+        .map_err(|e| SceneError::BadImage(format!("{what}: truncated or corrupt PNG: {e}")))?;
     // The decoder yields native-endian u16 samples.
-    let data = buf.chunks_exact(2).map(|c| u16::from_ne_bytes([c[0], c[1]])).collect();
+    let data = buf
+        .chunks_exact(2)
+        .map(|c| u16::from_ne_bytes([c[0], c[1]]))
+        .collect();
     Ok(DepthMap::new(w, h, data))
 }
 
 fn check_jpeg(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {
-    let bytes = std::fs::read(path).map_err(|e| SceneError::BadImage(format!("{what}: cannot read: {e}")))?;
+    let bytes = std::fs::read(path)
+        .map_err(|e| SceneError::BadImage(format!("{what}: cannot read: {e}")))?;
     // Decoders conceal truncation by filling grey; a complete JPEG ends with EOI (FF D9).
-    let trimmed = bytes.iter().rposition(|&b| b != 0).map(|i| &bytes[..=i]).unwrap_or(&[]);
+    let trimmed = bytes
+        .iter()
+        .rposition(|&b| b != 0)
+        .map(|i| &bytes[..=i])
+        .unwrap_or(&[]);
     if !bytes.starts_with(&[0xFF, 0xD8]) || !trimmed.ends_with(&[0xFF, 0xD9]) {
-        return Err(SceneError::BadImage(format!("{what}: not a complete JPEG (missing start or end marker; truncated?)")));
+        return Err(SceneError::BadImage(format!(
+            "{what}: not a complete JPEG (missing start or end marker; truncated?)"
+        )));
     }
     let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg)
         .map_err(|e| SceneError::BadImage(format!("{what}: unreadable or truncated JPEG: {e}")))?;
@@ -101,7 +118,9 @@ pub fn import(files: &SceneFiles, work_root: &Path) -> Result<ImportedScene, Sce
     let (cw, ch) = image_size(&first.color, &format!("frame {} colour", first.name))?;
     let color = Intrinsics::from_matrix(&k, cw, ch);
     if !(color.fx.is_finite() && color.fy.is_finite() && color.fx > 0.0 && color.fy > 0.0) {
-        return Err(SceneError::Malformed("colour intrinsics: focal lengths must be positive numbers".into()));
+        return Err(SceneError::Malformed(
+            "colour intrinsics: focal lengths must be positive numbers".into(),
+        ));
     }
     let depth_k_m = match &files.intrinsic_depth {
         Some(p) => Some(format::read_matrix(p, "depth intrinsics")?),
@@ -109,10 +128,13 @@ pub fn import(files: &SceneFiles, work_root: &Path) -> Result<ImportedScene, Sce
     };
     let axis_align = match &files.axis_align {
         Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| SceneError::Malformed(format!("axis alignment: cannot read: {e}")))?;
+            let text = std::fs::read_to_string(p)
+                .map_err(|e| SceneError::Malformed(format!("axis alignment: cannot read: {e}")))?;
             let m = format::parse_axis_align(&text, "axis_align_matrix.txt")?;
             if !is_finite_matrix(&m) {
-                return Err(SceneError::Malformed("axis_align_matrix.txt holds non-finite numbers".into()));
+                return Err(SceneError::Malformed(
+                    "axis_align_matrix.txt holds non-finite numbers".into(),
+                ));
             }
             Some(m)
         }
@@ -172,7 +194,12 @@ pub fn import(files: &SceneFiles, work_root: &Path) -> Result<ImportedScene, Sce
             "depth images are {dw}x{dh}, which matches neither the colour size {cw}x{ch} nor the depth intrinsics"
         )));
     }
-    let name = files.root.file_name().filter(|_| files.root != work_root).map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".into());
+    let name = files
+        .root
+        .file_name()
+        .filter(|_| files.root != work_root)
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into());
     Ok(ImportedScene {
         name,
         layout: files.layout,

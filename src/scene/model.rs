@@ -65,7 +65,10 @@ pub fn decompress_depth(blob: &[u8], width: u32, height: u32) -> Option<DepthMap
     if raw.len() != width as usize * height as usize * 2 {
         return None;
     }
-    let data = raw.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect();
+    let data = raw
+        .chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+        .collect();
     Some(DepthMap::new(width, height, data))
 }
 
@@ -84,7 +87,10 @@ pub fn pose_from_blob(b: &[u8]) -> Option<Matrix4<f64>> {
     if b.len() != 128 {
         return None;
     }
-    let vals: Vec<f64> = b.chunks_exact(8).map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]])).collect();
+    let vals: Vec<f64> = b
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+        .collect();
     Some(Matrix4::from_row_slice(&vals))
 }
 

@@ -1,7 +1,7 @@
 //! `grounder stitch-plan` and `grounder retrieval-bench`.
 
-use super::plan::plan;
 use super::decode::load_frames;
+use super::plan::plan;
 use super::render::StitchOptions;
 use super::retrieval::{
     ask, case_rng, generate_case, parse_answer, prompt, score, synthetic_pool, GeneratorOptions,

@@ -23,7 +23,9 @@ pub const SCALE_SLACK: f64 = 0.9;
 
 /// Decode JPEG (or PNG) bytes into RGB.
 pub fn decode_image(bytes: &[u8]) -> Result<RgbImage> {
-    Ok(image::load_from_memory(bytes).context("cannot decode image")?.to_rgb8())
+    Ok(image::load_from_memory(bytes)
+        .context("cannot decode image")?
+        .to_rgb8())
 }
 
 /// Read and decode image files in parallel.
@@ -84,16 +86,37 @@ mod tests {
 
     #[test]
     fn previews_are_half_size_and_keep_the_content() {
-        let img = RgbImage::from_fn(320, 240, |x, y| image::Rgb([(x * 255 / 320) as u8, (y * 255 / 240) as u8, 128]));
+        let img = RgbImage::from_fn(320, 240, |x, y| {
+            image::Rgb([(x * 255 / 320) as u8, (y * 255 / 240) as u8, 128])
+        });
         let p = decode_image(&make_preview(&img).unwrap()).unwrap();
         assert_eq!(p.dimensions(), (160, 120));
-        assert!(p.get_pixel(5, 60)[0] < 25 && p.get_pixel(155, 60)[0] > 230, "{:?} {:?}", p.get_pixel(5, 60), p.get_pixel(155, 60));
+        assert!(
+            p.get_pixel(5, 60)[0] < 25 && p.get_pixel(155, 60)[0] > 230,
+            "{:?} {:?}",
+            p.get_pixel(5, 60),
+            p.get_pixel(155, 60)
+        );
     }
 
     #[test]
     fn tile_scales_follow_each_grid_layout() {
-        let opts = StitchOptions { max_side: 2048, ..StitchOptions::default() };
-        let specs = [GridSpec { rows: 4, cols: 1, frames: 4 }, GridSpec { rows: 9, cols: 3, frames: 2 }];
+        let opts = StitchOptions {
+            max_side: 2048,
+            ..StitchOptions::default()
+        };
+        let specs = [
+            GridSpec {
+                rows: 4,
+                cols: 1,
+                frames: 4,
+            },
+            GridSpec {
+                rows: 9,
+                cols: 3,
+                frames: 2,
+            },
+        ];
         let s = tile_scales(&[(1296, 968); 6], &specs, &opts);
         let want = [2048.0 / (4.0 * 968.0), 2048.0 / (9.0 * 968.0)];
         for (i, v) in s.iter().enumerate() {
@@ -105,12 +128,29 @@ mod tests {
 
     #[test]
     fn previews_are_used_per_grid_and_only_where_they_are_sharp_enough() {
-        let specs = [GridSpec { rows: 4, cols: 1, frames: 2 }, GridSpec { rows: 2, cols: 4, frames: 3 }];
+        let specs = [
+            GridSpec {
+                rows: 4,
+                cols: 1,
+                frames: 2,
+            },
+            GridSpec {
+                rows: 2,
+                cols: 4,
+                frames: 3,
+            },
+        ];
         // The 4x1 grid at 0.53 may use previews; a grid at 0.6 may not.
         let scales = [0.53, 0.53, 0.6, 0.6, 0.6];
-        assert_eq!(use_previews(&scales, &specs, &[true; 5]), vec![true, true, false, false, false]);
+        assert_eq!(
+            use_previews(&scales, &specs, &[true; 5]),
+            vec![true, true, false, false, false]
+        );
         // One frame of a grid has no preview: the whole grid is drawn from full frames.
         let scales = [0.25; 5];
-        assert_eq!(use_previews(&scales, &specs, &[true, false, true, true, true]), vec![false, false, true, true, true]);
+        assert_eq!(
+            use_previews(&scales, &specs, &[true, false, true, true, true]),
+            vec![false, false, true, true, true]
+        );
     }
 }

@@ -14,10 +14,12 @@ pub mod render;
 pub mod retrieval;
 
 pub use annotate::{annotate_instances, AnnotateOptions};
+pub use decode::{
+    decode_image, load_frames, make_preview, tile_scales, use_previews, PREVIEW_SCALE,
+};
 pub use plan::{grid_starts, plan, GridSpec, DEFAULT_LIMIT};
-pub use decode::{decode_image, load_frames, make_preview, tile_scales, use_previews, PREVIEW_SCALE};
 pub use render::{
-    encode_jpeg, jpeg_data_url, render_grid,
-    render_grid_with_placements, resize_to_limit, resize_to_limit_with, stitch_all,
-    stitch_with_specs, ResizeFilter, StitchOptions, StitchedImage, TilePlacement,
+    encode_jpeg, jpeg_data_url, render_grid, render_grid_with_placements, resize_to_limit,
+    resize_to_limit_with, stitch_all, stitch_with_specs, ResizeFilter, StitchOptions,
+    StitchedImage, TilePlacement,
 };

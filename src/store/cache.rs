@@ -93,7 +93,10 @@ mod tests {
         let e = c.epoch();
         c.put(e, &job("a", JobStatus::Running), &raw(r#"[{"step":"x"}]"#));
         let (j, t) = c.get("a").unwrap_or_else(|| panic!("cached"));
-        assert_eq!((j.status, t.get()), (JobStatus::Running, r#"[{"step":"x"}]"#));
+        assert_eq!(
+            (j.status, t.get()),
+            (JobStatus::Running, r#"[{"step":"x"}]"#)
+        );
         c.invalidate();
         assert!(c.get("a").is_none(), "a write empties the cache");
     }

@@ -19,7 +19,13 @@ pub enum JobStatus {
 }
 
 impl JobStatus {
-    pub const ALL: [JobStatus; 5] = [JobStatus::Queued, JobStatus::Running, JobStatus::Succeeded, JobStatus::Failed, JobStatus::Canceled];
+    pub const ALL: [JobStatus; 5] = [
+        JobStatus::Queued,
+        JobStatus::Running,
+        JobStatus::Succeeded,
+        JobStatus::Failed,
+        JobStatus::Canceled,
+    ];
 
     pub fn as_str(&self) -> &'static str {
         match self {
@@ -36,7 +42,10 @@ impl JobStatus {
     }
 
     pub fn is_terminal(&self) -> bool {
-        matches!(self, JobStatus::Succeeded | JobStatus::Failed | JobStatus::Canceled)
+        matches!(
+            self,
+            JobStatus::Succeeded | JobStatus::Failed | JobStatus::Canceled
+        )
     }
 }
 
@@ -77,7 +86,8 @@ fn job_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<JobRecord, StoreError> {
         id: r.try_get("id")?,
         scene_id: r.try_get("scene_id")?,
         query: r.try_get("query")?,
-        status: JobStatus::parse(&status).ok_or_else(|| StoreError::Corrupt(format!("job status {status:?}")))?,
+        status: JobStatus::parse(&status)
+            .ok_or_else(|| StoreError::Corrupt(format!("job status {status:?}")))?,
         attempts: r.try_get("attempts")?,
         created_at: r.try_get("created_at")?,
         started_at: r.try_get("started_at")?,
@@ -90,7 +100,12 @@ fn job_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<JobRecord, StoreError> {
 const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result";
 
 impl Store {
-    pub async fn create_job(&self, id: &str, scene_id: &str, query: &str) -> Result<JobRecord, StoreError> {
+    pub async fn create_job(
+        &self,
+        id: &str,
+        scene_id: &str,
+        query: &str,
+    ) -> Result<JobRecord, StoreError> {
         // RETURNING gives the row as inserted: a worker may claim the job before a second
         // read, and the caller must still see it queued.
         let r = sqlx::query(&format!("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?) RETURNING {JOB_COLS}"))
@@ -105,7 +120,10 @@ impl Store {
     }
 
     pub async fn get_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        let row = sqlx::query(&format!("SELECT {JOB_COLS} FROM jobs WHERE id = ?")).bind(id).fetch_optional(&self.pool).await?;
+        let row = sqlx::query(&format!("SELECT {JOB_COLS} FROM jobs WHERE id = ?"))
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await?;
         row.as_ref().map(job_from_row).transpose()
     }
 
@@ -148,13 +166,22 @@ impl Store {
             return Ok(None);
         };
         let job = job_from_row(&row)?;
-        sqlx::query("DELETE FROM job_trace WHERE job_id = ?").bind(&job.id).execute(&mut *tx).await?;
+        sqlx::query("DELETE FROM job_trace WHERE job_id = ?")
+            .bind(&job.id)
+            .execute(&mut *tx)
+            .await?;
         tx.commit().await?;
         Ok(Some(job))
     }
 
     /// Finish a running job; only a job still `running` is changed (a cancel wins).
-    pub async fn finish_job(&self, id: &str, status: JobStatus, result: Option<&Value>, error: Option<&Value>) -> Result<bool, StoreError> {
+    pub async fn finish_job(
+        &self,
+        id: &str,
+        status: JobStatus,
+        result: Option<&Value>,
+        error: Option<&Value>,
+    ) -> Result<bool, StoreError> {
         let r = sqlx::query("UPDATE jobs SET status = ?, result = ?, error = ?, finished_at = ? WHERE id = ? AND status = 'running'")
             .bind(status.as_str())
             .bind(result.map(|v| v.to_string()))
@@ -213,20 +240,31 @@ impl Store {
         .execute(&self.pool)
         .await?
         .rows_affected();
-        let requeued = sqlx::query("UPDATE jobs SET status = 'queued', started_at = NULL WHERE status = 'running'")
-            .execute(&self.pool)
-            .await?
-            .rows_affected();
+        let requeued = sqlx::query(
+            "UPDATE jobs SET status = 'queued', started_at = NULL WHERE status = 'running'",
+        )
+        .execute(&self.pool)
+        .await?
+        .rows_affected();
         Ok((requeued, failed))
     }
 
     pub async fn count_jobs_by_status(&self) -> Result<Vec<(String, i64)>, StoreError> {
-        let rows = sqlx::query("SELECT status, COUNT(*) AS n FROM jobs GROUP BY status").fetch_all(&self.pool).await?;
-        rows.iter().map(|r| Ok((r.try_get("status")?, r.try_get("n")?))).collect()
+        let rows = sqlx::query("SELECT status, COUNT(*) AS n FROM jobs GROUP BY status")
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter()
+            .map(|r| Ok((r.try_get("status")?, r.try_get("n")?)))
+            .collect()
     }
 
     /// Append one step to a job's trace.
-    pub async fn append_trace(&self, job_id: &str, step: &str, data: &Value) -> Result<(), StoreError> {
+    pub async fn append_trace(
+        &self,
+        job_id: &str,
+        step: &str,
+        data: &Value,
+    ) -> Result<(), StoreError> {
         let r = sqlx::query("INSERT INTO job_trace (job_id, seq, step, data) VALUES (?1, (SELECT COALESCE(MAX(seq), -1) + 1 FROM job_trace WHERE job_id = ?1), ?2, ?3)")
             .bind(job_id)
             .bind(step)
@@ -248,15 +286,21 @@ impl Store {
         FROM job_trace t WHERE t.job_id = jobs.id)";
 
     /// A job and its trace (see [`Self::get_trace`]) in one statement: what a poll needs.
-    pub async fn get_job_with_trace(&self, id: &str) -> Result<Option<(JobRecord, Box<RawValue>)>, StoreError> {
+    pub async fn get_job_with_trace(
+        &self,
+        id: &str,
+    ) -> Result<Option<(JobRecord, Box<RawValue>)>, StoreError> {
         if let Some(hit) = self.job_cache.get(id) {
             return Ok(Some(hit));
         }
         let epoch = self.job_cache.epoch();
-        let row = sqlx::query(&format!("SELECT {JOB_COLS}, {} AS trace FROM jobs WHERE id = ?", Self::TRACE_JSON))
-            .bind(id)
-            .fetch_optional(&self.pool)
-            .await?;
+        let row = sqlx::query(&format!(
+            "SELECT {JOB_COLS}, {} AS trace FROM jobs WHERE id = ?",
+            Self::TRACE_JSON
+        ))
+        .bind(id)
+        .fetch_optional(&self.pool)
+        .await?;
         let Some(row) = row else { return Ok(None) };
         let job = job_from_row(&row)?;
         let text: Option<String> = row.try_get("trace")?;
@@ -268,17 +312,21 @@ impl Store {
 
     /// A job's trace, parsed (same shape as in [`Self::get_job_with_trace`]).
     pub async fn get_trace(&self, job_id: &str) -> Result<Vec<Value>, StoreError> {
-        let row = sqlx::query(&format!("SELECT {} AS trace FROM jobs WHERE id = ?", Self::TRACE_JSON))
-            .bind(job_id)
-            .fetch_optional(&self.pool)
-            .await?;
+        let row = sqlx::query(&format!(
+            "SELECT {} AS trace FROM jobs WHERE id = ?",
+            Self::TRACE_JSON
+        ))
+        .bind(job_id)
+        .fetch_optional(&self.pool)
+        .await?;
         let text: Option<String> = match row {
             Some(r) => r.try_get("trace")?,
             None => None,
         };
         match text {
             None => Ok(Vec::new()),
-            Some(t) => serde_json::from_str(&t).map_err(|e| StoreError::Corrupt(format!("trace of job {job_id}: {e}"))),
+            Some(t) => serde_json::from_str(&t)
+                .map_err(|e| StoreError::Corrupt(format!("trace of job {job_id}: {e}"))),
         }
     }
 }

@@ -57,7 +57,13 @@ fn matrix_json(m: &Matrix4<f64>) -> String {
 
 impl Store {
     /// Insert a validated scene and its frames in one transaction.
-    pub async fn insert_scene(&self, id: &str, scene: &ImportedScene, status: &str, detector: Option<&str>) -> Result<(), StoreError> {
+    pub async fn insert_scene(
+        &self,
+        id: &str,
+        scene: &ImportedScene,
+        status: &str,
+        detector: Option<&str>,
+    ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
         let usable = scene.frames.iter().filter(|f| f.usable).count() as i64;
         sqlx::query(
@@ -99,7 +105,10 @@ impl Store {
         Ok(())
     }
 
-    fn scene_from_row(row: &sqlx::sqlite::SqliteRow, unusable: Vec<String>) -> Result<SceneRecord, StoreError> {
+    fn scene_from_row(
+        row: &sqlx::sqlite::SqliteRow,
+        unusable: Vec<String>,
+    ) -> Result<SceneRecord, StoreError> {
         Ok(SceneRecord {
             id: row.try_get("id")?,
             name: row.try_get("name")?,
@@ -121,12 +130,22 @@ impl Store {
     }
 
     async fn unusable_names(&self, id: &str) -> Result<Vec<String>, StoreError> {
-        let rows = sqlx::query("SELECT name FROM frames WHERE scene_id = ? AND usable = 0 ORDER BY idx").bind(id).fetch_all(&self.pool).await?;
-        rows.iter().map(|r| r.try_get::<String, _>("name").map_err(StoreError::from)).collect()
+        let rows =
+            sqlx::query("SELECT name FROM frames WHERE scene_id = ? AND usable = 0 ORDER BY idx")
+                .bind(id)
+                .fetch_all(&self.pool)
+                .await?;
+        rows.iter()
+            .map(|r| r.try_get::<String, _>("name").map_err(StoreError::from))
+            .collect()
     }
 
     pub async fn get_scene(&self, id: &str) -> Result<Option<SceneRecord>, StoreError> {
-        let Some(row) = sqlx::query("SELECT * FROM scenes WHERE id = ?").bind(id).fetch_optional(&self.pool).await? else {
+        let Some(row) = sqlx::query("SELECT * FROM scenes WHERE id = ?")
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await?
+        else {
             return Ok(None);
         };
         let unusable = self.unusable_names(id).await?;
@@ -134,7 +153,9 @@ impl Store {
     }
 
     pub async fn list_scenes(&self) -> Result<Vec<SceneRecord>, StoreError> {
-        let rows = sqlx::query("SELECT * FROM scenes ORDER BY created_at, id").fetch_all(&self.pool).await?;
+        let rows = sqlx::query("SELECT * FROM scenes ORDER BY created_at, id")
+            .fetch_all(&self.pool)
+            .await?;
         let mut out = Vec::with_capacity(rows.len());
         for row in &rows {
             let id: String = row.try_get("id")?;
@@ -153,10 +174,12 @@ impl Store {
 
     async fn delete_scene_if_idle_tx(&self, id: &str) -> Result<bool, StoreError> {
         let mut tx = self.pool.begin().await?;
-        let busy: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'")
-            .bind(id)
-            .fetch_one(&mut *tx)
-            .await?;
+        let busy: i64 = sqlx::query_scalar(
+            "SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'",
+        )
+        .bind(id)
+        .fetch_one(&mut *tx)
+        .await?;
         if busy > 0 {
             return Ok(false);
         }
@@ -166,23 +189,45 @@ impl Store {
             .bind(id)
             .execute(&mut *tx)
             .await?;
-        sqlx::query("DELETE FROM scenes WHERE id = ?").bind(id).execute(&mut *tx).await?;
+        sqlx::query("DELETE FROM scenes WHERE id = ?")
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
         tx.commit().await?;
         Ok(true)
     }
 
-    pub async fn set_scene_status(&self, id: &str, status: &str, error: Option<&str>) -> Result<(), StoreError> {
-        sqlx::query("UPDATE scenes SET status = ?, error = ? WHERE id = ?").bind(status).bind(error).bind(id).execute(&self.pool).await?;
+    pub async fn set_scene_status(
+        &self,
+        id: &str,
+        status: &str,
+        error: Option<&str>,
+    ) -> Result<(), StoreError> {
+        sqlx::query("UPDATE scenes SET status = ?, error = ? WHERE id = ?")
+            .bind(status)
+            .bind(error)
+            .bind(id)
+            .execute(&self.pool)
+            .await?;
         Ok(())
     }
 
     /// Scenes left `indexing` by a previous process (indexing is restarted for them).
     pub async fn scenes_with_status(&self, status: &str) -> Result<Vec<String>, StoreError> {
-        Ok(sqlx::query_scalar("SELECT id FROM scenes WHERE status = ?").bind(status).fetch_all(&self.pool).await?)
+        Ok(sqlx::query_scalar("SELECT id FROM scenes WHERE status = ?")
+            .bind(status)
+            .fetch_all(&self.pool)
+            .await?)
     }
 
     /// Replace a frame's cached detections and bump the scene's indexing progress.
-    pub async fn put_detections(&self, scene_id: &str, detector: &str, frame_idx: usize, dets: &[Detection]) -> Result<(), StoreError> {
+    pub async fn put_detections(
+        &self,
+        scene_id: &str,
+        detector: &str,
+        frame_idx: usize,
+        dets: &[Detection],
+    ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
         sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
             .bind(scene_id)
@@ -204,15 +249,27 @@ impl Store {
                 .execute(&mut *tx)
                 .await?;
         }
-        sqlx::query("UPDATE scenes SET index_done = index_done + 1 WHERE id = ?").bind(scene_id).execute(&mut *tx).await?;
+        sqlx::query("UPDATE scenes SET index_done = index_done + 1 WHERE id = ?")
+            .bind(scene_id)
+            .execute(&mut *tx)
+            .await?;
         tx.commit().await?;
         Ok(())
     }
 
     /// Reset indexing progress (before (re-)indexing with `detector`).
-    pub async fn reset_index(&self, scene_id: &str, detector: &str, total: usize) -> Result<(), StoreError> {
+    pub async fn reset_index(
+        &self,
+        scene_id: &str,
+        detector: &str,
+        total: usize,
+    ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ?").bind(scene_id).bind(detector).execute(&mut *tx).await?;
+        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ?")
+            .bind(scene_id)
+            .bind(detector)
+            .execute(&mut *tx)
+            .await?;
         sqlx::query("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ?")
             .bind(detector)
             .bind(total as i64)
@@ -224,7 +281,11 @@ impl Store {
     }
 
     /// All cached detections of a scene for one detector, by frame index.
-    pub async fn detections(&self, scene_id: &str, detector: &str) -> Result<BTreeMap<usize, Vec<Detection>>, StoreError> {
+    pub async fn detections(
+        &self,
+        scene_id: &str,
+        detector: &str,
+    ) -> Result<BTreeMap<usize, Vec<Detection>>, StoreError> {
         let rows = sqlx::query("SELECT frame_idx, label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? ORDER BY frame_idx, score DESC")
             .bind(scene_id)
             .bind(detector)
@@ -244,19 +305,29 @@ impl Store {
     }
 
     /// Load a scene for the pipeline: cameras and decoded depth for every frame.
-    pub async fn load_scene(&self, id: &str, scene_dir: &Path) -> Result<Option<SceneData>, StoreError> {
-        let Some(s) = sqlx::query("SELECT * FROM scenes WHERE id = ?").bind(id).fetch_optional(&self.pool).await? else {
+    pub async fn load_scene(
+        &self,
+        id: &str,
+        scene_dir: &Path,
+    ) -> Result<Option<SceneData>, StoreError> {
+        let Some(s) = sqlx::query("SELECT * FROM scenes WHERE id = ?")
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await?
+        else {
             return Ok(None);
         };
         let corrupt = |what: &str| StoreError::Corrupt(format!("scene {id}: {what}"));
-        let color: Intrinsics = serde_json::from_str(&s.try_get::<String, _>("color_k")?).map_err(|_| corrupt("colour intrinsics"))?;
+        let color: Intrinsics = serde_json::from_str(&s.try_get::<String, _>("color_k")?)
+            .map_err(|_| corrupt("colour intrinsics"))?;
         let depth_k: Option<Intrinsics> = match s.try_get::<Option<String>, _>("depth_k")? {
             Some(t) => Some(serde_json::from_str(&t).map_err(|_| corrupt("depth intrinsics"))?),
             None => None,
         };
         let align = match s.try_get::<Option<String>, _>("axis_align")? {
             Some(t) => {
-                let v: Vec<f64> = serde_json::from_str(&t).map_err(|_| corrupt("axis alignment"))?;
+                let v: Vec<f64> =
+                    serde_json::from_str(&t).map_err(|_| corrupt("axis alignment"))?;
                 if v.len() != 16 {
                     return Err(corrupt("axis alignment"));
                 }
@@ -266,10 +337,21 @@ impl Store {
         };
         let dw: i64 = s.try_get("depth_width")?;
         let dh: i64 = s.try_get("depth_height")?;
-        let rows = sqlx::query("SELECT idx, name, pose, usable, depth FROM frames WHERE scene_id = ? ORDER BY idx").bind(id).fetch_all(&self.pool).await?;
+        let rows = sqlx::query(
+            "SELECT idx, name, pose, usable, depth FROM frames WHERE scene_id = ? ORDER BY idx",
+        )
+        .bind(id)
+        .fetch_all(&self.pool)
+        .await?;
         let mut raw = Vec::with_capacity(rows.len());
         for r in rows {
-            raw.push((r.try_get::<i64, _>("idx")?, r.try_get::<String, _>("name")?, r.try_get::<Vec<u8>, _>("pose")?, r.try_get::<i64, _>("usable")? != 0, r.try_get::<Vec<u8>, _>("depth")?));
+            raw.push((
+                r.try_get::<i64, _>("idx")?,
+                r.try_get::<String, _>("name")?,
+                r.try_get::<Vec<u8>, _>("pose")?,
+                r.try_get::<i64, _>("usable")? != 0,
+                r.try_get::<Vec<u8>, _>("depth")?,
+            ));
         }
         let scene_dir_owned = scene_dir.to_path_buf();
         let align_m = align.unwrap_or_else(Matrix4::identity);
@@ -279,13 +361,20 @@ impl Store {
             raw.into_par_iter()
                 .map(|(idx, name, pose, usable, depth)| {
                     let pose = pose_from_blob(&pose).ok_or_else(|| format!("frame {name} pose"))?;
-                    let depth = decompress_depth(&depth, dw as u32, dh as u32).ok_or_else(|| format!("frame {name} depth"))?;
+                    let depth = decompress_depth(&depth, dw as u32, dh as u32)
+                        .ok_or_else(|| format!("frame {name} depth"))?;
                     let inst = scene_dir.join("instance").join(format!("{idx}.png"));
                     Ok(FrameData {
                         idx: idx as usize,
                         name,
                         usable,
-                        camera: FrameCamera { color, depth: depth_k, depth_size: (dw as u32, dh as u32), pose, align: align_m },
+                        camera: FrameCamera {
+                            color,
+                            depth: depth_k,
+                            depth_size: (dw as u32, dh as u32),
+                            pose,
+                            align: align_m,
+                        },
                         depth: Arc::new(depth),
                         color_path: scene_dir.join("color").join(format!("{idx}.jpg")),
                         instance_path: inst.is_file().then_some(inst),
@@ -299,8 +388,19 @@ impl Store {
         let labels_path = scene_dir.join("instance").join("labels.json");
         let instance_labels = std::fs::read_to_string(&labels_path).ok().and_then(|t| {
             let m: BTreeMap<String, String> = serde_json::from_str(&t).ok()?;
-            Some(m.into_iter().filter_map(|(k, v)| Some((k.parse().ok()?, v))).collect())
+            Some(
+                m.into_iter()
+                    .filter_map(|(k, v)| Some((k.parse().ok()?, v)))
+                    .collect(),
+            )
         });
-        Ok(Some(SceneData { id: id.to_string(), color, depth: depth_k, axis_align: align, frames, instance_labels }))
+        Ok(Some(SceneData {
+            id: id.to_string(),
+            color,
+            depth: depth_k,
+            axis_align: align,
+            frames,
+            instance_labels,
+        }))
     }
 }

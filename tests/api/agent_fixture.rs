@@ -58,12 +58,21 @@ impl Fixture {
 
     /// As `start`, with another detector (e.g. the closed-vocabulary "centernet", which
     /// needs ONNX Runtime and the vendored model).
-    pub async fn start_with_detector(replies: Vec<Reply>, timeout_ms: u64, detector: &str) -> Fixture {
+    pub async fn start_with_detector(
+        replies: Vec<Reply>,
+        timeout_ms: u64,
+        detector: &str,
+    ) -> Fixture {
         Self::start_with(replies, timeout_ms, detector, |_| {}).await
     }
 
     /// As `start_with_detector`, with the VLM client settings adjusted by `tweak`.
-    pub async fn start_with(replies: Vec<Reply>, timeout_ms: u64, detector: &str, tweak: impl FnOnce(&mut VlmConfig)) -> Fixture {
+    pub async fn start_with(
+        replies: Vec<Reply>,
+        timeout_ms: u64,
+        detector: &str,
+        tweak: impl FnOnce(&mut VlmConfig),
+    ) -> Fixture {
         let vlm = FakeVlm::start(replies).await;
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = test_config(dir.path().to_path_buf());

@@ -1,8 +1,8 @@
 //! Each feedback path: the exact feedback text the agent sent, the final job state and the
 //! trace steps.
 
-use crate::fake_vlm::{images_in, last_message, text_of, Reply};
 use crate::agent_fixture::*;
+use crate::fake_vlm::{images_in, last_message, text_of, Reply};
 use grounder::vlm::prompts::{InstanceInput, Prompts, ReplyKind};
 use serde_json::Value;
 use std::time::{Duration, Instant};
@@ -124,7 +124,12 @@ async fn unparsable_then_invalid_image_then_success() {
 async fn grids_drawn_at_half_size_or_less_read_the_previews_indexing_stored() {
     // A 256-pixel side limit draws every 320x240 frame at about a quarter of its size.
     let f = Fixture::start_with(vec![], 5_000, "oracle", |c| c.max_image_side = 256).await;
-    let colour = f.app.data_dir.join("scenes").join(&f.scene_id).join("color");
+    let colour = f
+        .app
+        .data_dir
+        .join("scenes")
+        .join(&f.scene_id)
+        .join("color");
     let (mut previews, mut frames) = (0, 0);
     for e in std::fs::read_dir(&colour).unwrap() {
         let p = e.unwrap().path();
@@ -137,22 +142,42 @@ async fn grids_drawn_at_half_size_or_less_read_the_previews_indexing_stored() {
         }
     }
     assert!(frames > 0);
-    assert_eq!(previews, frames, "one preview per frame (the fixture scene has no unusable frame)");
+    assert_eq!(
+        previews, frames,
+        "one preview per frame (the fixture scene has no unusable frame)"
+    );
 
     let (class, frame) = class_with_single(&f);
-    f.vlm.script_push(vec![analysis(&class), pick_image(frame as u32)]);
+    f.vlm
+        .script_push(vec![analysis(&class), pick_image(frame as u32)]);
     let job = f.run_job(QUERY).await;
     assert_eq!(job["status"], "succeeded", "{job:#}");
     let st = &steps(&job, "stitching")[0]["outputs"];
     assert_eq!(st["from_previews"], f.offered(&class).len(), "{st:#}");
     for g in st["grids"].as_array().unwrap() {
-        assert_eq!(g["height"].as_u64().unwrap().max(g["width"].as_u64().unwrap()), 256, "{g}");
+        assert_eq!(
+            g["height"]
+                .as_u64()
+                .unwrap()
+                .max(g["width"].as_u64().unwrap()),
+            256,
+            "{g}"
+        );
         assert_jpeg(&f, g["url"].as_str().unwrap()).await;
     }
     // Detection and projection still ran on the full frame: the box is in its pixels.
     let det = &steps(&job, "detection")[0]["outputs"]["detections"][0]["box"];
-    let want = f.dets[&frame].iter().find(|d| d.label == class).unwrap().bbox;
-    let got: Vec<f32> = det.as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
+    let want = f.dets[&frame]
+        .iter()
+        .find(|d| d.label == class)
+        .unwrap()
+        .bbox;
+    let got: Vec<f32> = det
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap() as f32)
+        .collect();
     assert_eq!(got, want.to_vec());
 }
 
@@ -429,24 +454,44 @@ async fn a_class_no_frame_shows_falls_back_to_evenly_sampled_frames() {
     // The oracle detector is open-vocabulary, but no cached detection is a "unicorn".
     // (A closed-vocabulary detector takes the sibling branch, "detector cannot see this
     // class", with the same sampling; CenterNet's mapping is tested in vision_centernet.)
-    f.vlm.script_push(vec![analysis("unicorn"), pick_image("00000"), pick_image("00000"), pick_image("00000"), pick_image("00000")]);
+    f.vlm.script_push(vec![
+        analysis("unicorn"),
+        pick_image("00000"),
+        pick_image("00000"),
+        pick_image("00000"),
+        pick_image("00000"),
+    ]);
     let job = f.run_job(QUERY).await;
-    assert!(job["status"] == "failed" || job["status"] == "succeeded", "{job:#}");
+    assert!(
+        job["status"] == "failed" || job["status"] == "succeeded",
+        "{job:#}"
+    );
     let pre = steps(&job, "preselection");
     assert_eq!(pre.len(), 1, "{job:#}");
     let out = &pre[0]["outputs"];
     assert_eq!(out["detector_class"], "unicorn", "{out:#}");
     let why = out["fallback"].as_str().unwrap_or_default();
-    assert!(why.starts_with("no frame has a \"unicorn\" detection"), "{why}");
+    assert!(
+        why.starts_with("no frame has a \"unicorn\" detection"),
+        "{why}"
+    );
     // Evenly sampled usable frames: distinct, in order, at most `fallback_frames` of them.
     let usable = pre[0]["inputs"]["usable_frames"].as_u64().unwrap_or(0) as usize;
-    let ids: Vec<u32> = out["image_ids"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().parse().unwrap()).collect();
+    let ids: Vec<u32> = out["image_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().parse().unwrap())
+        .collect();
     let want = usable.min(grounder::agent::AgentParams::default().fallback_frames);
     assert_eq!(ids.len(), want, "{out:#}");
     assert!(want > 0 && ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
     // Those frames reached the VLM as grids.
     let reqs = f.vlm.requests();
-    assert!(reqs.len() >= 2, "query analysis and at least one grounding turn");
+    assert!(
+        reqs.len() >= 2,
+        "query analysis and at least one grounding turn"
+    );
     assert!(images_in(&reqs[1]["messages"][1]) >= 1);
 }
 
@@ -454,13 +499,23 @@ async fn a_class_no_frame_shows_falls_back_to_evenly_sampled_frames() {
 async fn a_class_the_closed_vocabulary_detector_cannot_see_falls_back_and_fails_by_name() {
     // The real CenterNet (COCO-80) indexes the scene; a whiteboard has no COCO class.
     let f = Fixture::start_with_detector(vec![], 5_000, "centernet").await;
-    let coco: Vec<String> = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/models/coco80.txt")).unwrap().lines().map(str::to_string).collect();
+    let coco: Vec<String> =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/models/coco80.txt"))
+            .unwrap()
+            .lines()
+            .map(str::to_string)
+            .collect();
     assert_eq!(coco.len(), 80);
     assert!(grounder::vision::synonyms::map_to_vocabulary("whiteboard", &coco).is_none());
     let (_, scene) = f.app.get_json(&format!("/v1/scenes/{}", f.scene_id)).await;
     assert_eq!(scene["index"]["detector"], "centernet", "{scene:#}");
-    assert!(scene["index"]["total"].as_i64().unwrap_or(0) > 0 && scene["index"]["done"] == scene["index"]["total"], "{scene:#}");
-    f.vlm.script_push(vec![analysis("whiteboard"), pick_image("00000")]);
+    assert!(
+        scene["index"]["total"].as_i64().unwrap_or(0) > 0
+            && scene["index"]["done"] == scene["index"]["total"],
+        "{scene:#}"
+    );
+    f.vlm
+        .script_push(vec![analysis("whiteboard"), pick_image("00000")]);
     let job = f.run_job(QUERY).await;
     // Pre-selection: no detector class, evenly sampled usable frames, said in the trace.
     let pre = steps(&job, "preselection");
@@ -470,7 +525,12 @@ async fn a_class_the_closed_vocabulary_detector_cannot_see_falls_back_and_fails_
     let why = out["fallback"].as_str().unwrap_or_default();
     assert_eq!(why, "detector cannot see this class: \"whiteboard\"");
     let usable = pre[0]["inputs"]["usable_frames"].as_u64().unwrap_or(0) as usize;
-    let ids: Vec<u32> = out["image_ids"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().parse().unwrap()).collect();
+    let ids: Vec<u32> = out["image_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().parse().unwrap())
+        .collect();
     let want = usable.min(grounder::agent::AgentParams::default().fallback_frames);
     assert!(want > 0 && ids.len() == want, "{ids:?} of {usable} usable");
     assert!(ids.windows(2).all(|w| w[0] < w[1]), "{ids:?}");
@@ -480,8 +540,17 @@ async fn a_class_the_closed_vocabulary_detector_cannot_see_falls_back_and_fails_
     assert_eq!(reqs.len(), 2, "query analysis and one grounding turn");
     assert!(images_in(&reqs[1]["messages"][1]) >= 1);
     assert_eq!(job["status"], "failed", "{job:#}");
-    assert_eq!(job["error"]["code"], "detector_cannot_see_class", "{:#}", job["error"]);
-    assert!(job["error"]["detail"].as_str().unwrap_or_default().contains("whiteboard"));
-    assert!(!step_names(&job).iter().any(|n| n == "detection" || n == "segmentation"));
+    assert_eq!(
+        job["error"]["code"], "detector_cannot_see_class",
+        "{:#}",
+        job["error"]
+    );
+    assert!(job["error"]["detail"]
+        .as_str()
+        .unwrap_or_default()
+        .contains("whiteboard"));
+    assert!(!step_names(&job)
+        .iter()
+        .any(|n| n == "detection" || n == "segmentation"));
     assert_trace_clean(&job);
 }

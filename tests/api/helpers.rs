@@ -47,7 +47,14 @@ impl TestApp {
             .await
             .expect("server");
         });
-        TestApp { addr, client: reqwest::Client::new(), data_dir, _dir: None, stop: Some(tx), handle: Some(handle) }
+        TestApp {
+            addr,
+            client: reqwest::Client::new(),
+            data_dir,
+            _dir: None,
+            stop: Some(tx),
+            handle: Some(handle),
+        }
     }
 
     pub fn url(&self, path: &str) -> String {
@@ -55,7 +62,13 @@ impl TestApp {
     }
 
     pub async fn upload(&self, body: Vec<u8>, content_type: &str) -> reqwest::Response {
-        self.client.post(self.url("/v1/scenes")).header("Content-Type", content_type).body(body).send().await.expect("upload")
+        self.client
+            .post(self.url("/v1/scenes"))
+            .header("Content-Type", content_type)
+            .body(body)
+            .send()
+            .await
+            .expect("upload")
     }
 
     pub async fn get_json(&self, path: &str) -> (u16, serde_json::Value) {
@@ -65,7 +78,12 @@ impl TestApp {
     }
 
     pub async fn create_job(&self, scene_id: &str, query: &str) -> reqwest::Response {
-        self.client.post(self.url("/v1/jobs")).json(&serde_json::json!({"scene_id": scene_id, "query": query})).send().await.expect("job")
+        self.client
+            .post(self.url("/v1/jobs"))
+            .json(&serde_json::json!({"scene_id": scene_id, "query": query}))
+            .send()
+            .await
+            .expect("job")
     }
 
     /// Poll a job until its status is terminal (or the timeout passes).
@@ -99,23 +117,38 @@ pub fn tiny_scene_files(frames: usize) -> Vec<(String, Vec<u8>)> {
     let mut files = Vec::new();
     for i in 0..frames {
         let name = i * 20;
-        let img = image::RgbImage::from_fn(cw, ch, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, (i * 40) as u8]));
+        let img = image::RgbImage::from_fn(cw, ch, |x, y| {
+            image::Rgb([(x * 4) as u8, (y * 5) as u8, (i * 40) as u8])
+        });
         let mut jpg = Vec::new();
-        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90).encode_image(&img).expect("jpeg");
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+            .encode_image(&img)
+            .expect("jpeg");
         files.push((format!("color/{name}.jpg"), jpg));
-        let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(dw, dh, |x, _| image::Luma([1000 + x as u16 * 10]));
+        let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(dw, dh, |x, _| {
+            image::Luma([1000 + x as u16 * 10])
+        });
         let mut png = Vec::new();
-        depth.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("png");
+        depth
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .expect("png");
         files.push((format!("depth/{name}.png"), png));
         let pose = if i == frames - 1 && frames > 2 {
-            "-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n".to_string()
+            "-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n-inf -inf -inf -inf\n"
+                .to_string()
         } else {
             format!("1 0 0 {}\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", i as f64 * 0.5)
         };
         files.push((format!("pose/{name}.txt"), pose.into_bytes()));
     }
-    files.push(("intrinsic/intrinsic_color.txt".into(), b"50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n".to_vec()));
-    files.push(("axis_align_matrix.txt".into(), b"1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 0 1\n".to_vec()));
+    files.push((
+        "intrinsic/intrinsic_color.txt".into(),
+        b"50 0 32 0\n0 50 24 0\n0 0 1 0\n0 0 0 1\n".to_vec(),
+    ));
+    files.push((
+        "axis_align_matrix.txt".into(),
+        b"1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 0 1\n".to_vec(),
+    ));
     files
 }
 
@@ -131,7 +164,8 @@ pub fn tar_of(files: &[(String, Vec<u8>)], top: Option<&str>) -> Vec<u8> {
         h.set_size(bytes.len() as u64);
         h.set_mode(0o644);
         h.set_cksum();
-        b.append_data(&mut h, p, bytes.as_slice()).expect("tar append");
+        b.append_data(&mut h, p, bytes.as_slice())
+            .expect("tar append");
     }
     b.into_inner().expect("tar finish")
 }
@@ -144,7 +178,8 @@ pub fn gzip(bytes: &[u8]) -> Vec<u8> {
 
 pub fn zip_of(files: &[(String, Vec<u8>)]) -> Vec<u8> {
     let mut z = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
-    let opts = zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Deflated);
+    let opts = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated);
     for (path, bytes) in files {
         z.start_file(path.as_str(), opts).expect("zip file");
         z.write_all(bytes).expect("zip write");

@@ -6,5 +6,8 @@ fn checked_in_openapi_matches_the_code() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("openapi.yaml");
     let on_disk = std::fs::read_to_string(&path).unwrap_or_default();
     assert!(generated.contains("/v1/jobs/{id}/cancel"));
-    assert!(on_disk == generated, "openapi.yaml is stale: run `cargo run -- openapi > openapi.yaml`");
+    assert!(
+        on_disk == generated,
+        "openapi.yaml is stale: run `cargo run -- openapi > openapi.yaml`"
+    );
 }

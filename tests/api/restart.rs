@@ -24,15 +24,28 @@ fn start(data_dir: &std::path::Path, delay_ms: u64) -> Server {
         .expect("spawn grounder");
     let stdout = child.stdout.take().expect("stdout");
     let mut line = String::new();
-    BufReader::new(stdout).read_line(&mut line).expect("read listening line");
-    let base = line.trim().strip_prefix("listening on ").expect("listening line").to_string();
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("read listening line");
+    let base = line
+        .trim()
+        .strip_prefix("listening on ")
+        .expect("listening line")
+        .to_string();
     Server { child, base }
 }
 
 async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
     let t = Instant::now();
     loop {
-        let j: Value = c.get(url).send().await.expect("get").json().await.expect("json");
+        let j: Value = c
+            .get(url)
+            .send()
+            .await
+            .expect("get")
+            .json()
+            .await
+            .expect("json");
         if j["status"] == want || t.elapsed() > Duration::from_secs(20) {
             return j;
         }
@@ -41,7 +54,10 @@ async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
 }
 
 fn signal(child: &mut Child, sig: &str) {
-    Command::new("kill").args([sig, &child.id().to_string()]).status().expect("kill");
+    Command::new("kill")
+        .args([sig, &child.id().to_string()])
+        .status()
+        .expect("kill");
     child.wait().expect("wait");
 }
 
@@ -50,11 +66,36 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     let dir = tempfile::tempdir().unwrap();
     let c = reqwest::Client::new();
     let mut s = start(dir.path(), 1500);
-    let r = c.post(format!("{}/v1/scenes", s.base)).header("content-type", "application/x-tar").body(tar_of(&tiny_scene_files(3), None)).send().await.unwrap();
-    let sid = r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_string();
-    let job: Value = c.post(format!("{}/v1/jobs", s.base)).json(&serde_json::json!({"scene_id": sid, "query": "the bed"})).send().await.unwrap().json().await.unwrap();
+    let r = c
+        .post(format!("{}/v1/scenes", s.base))
+        .header("content-type", "application/x-tar")
+        .body(tar_of(&tiny_scene_files(3), None))
+        .send()
+        .await
+        .unwrap();
+    let sid = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let job: Value = c
+        .post(format!("{}/v1/jobs", s.base))
+        .json(&serde_json::json!({"scene_id": sid, "query": "the bed"}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     let jid = job["id"].as_str().unwrap().to_string();
-    let queued: Value = c.post(format!("{}/v1/jobs", s.base)).json(&serde_json::json!({"scene_id": sid, "query": "the desk"})).send().await.unwrap().json().await.unwrap();
+    let queued: Value = c
+        .post(format!("{}/v1/jobs", s.base))
+        .json(&serde_json::json!({"scene_id": sid, "query": "the desk"}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     let qid = queued["id"].as_str().unwrap().to_string();
     let j = wait_status(&c, &format!("{}/v1/jobs/{jid}", s.base), "running").await;
     assert_eq!(j["status"], "running");
@@ -63,7 +104,11 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     signal(&mut s.child, "-KILL");
     let mut s = start(dir.path(), 100);
     let j = wait_status(&c, &format!("{}/v1/jobs/{jid}", s.base), "succeeded").await;
-    assert_eq!((j["status"].as_str(), j["attempts"].as_i64()), (Some("succeeded"), Some(2)), "{j}");
+    assert_eq!(
+        (j["status"].as_str(), j["attempts"].as_i64()),
+        (Some("succeeded"), Some(2)),
+        "{j}"
+    );
     let q = wait_status(&c, &format!("{}/v1/jobs/{qid}", s.base), "succeeded").await;
     assert_eq!(q["status"], "succeeded", "nothing queued is lost");
     assert!(q["result"]["box"]["min"].is_array());
@@ -72,13 +117,24 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     // is not counted.
     signal(&mut s.child, "-KILL");
     let mut s = start(dir.path(), 3000);
-    let job: Value = c.post(format!("{}/v1/jobs", s.base)).json(&serde_json::json!({"scene_id": sid, "query": "the lamp"})).send().await.unwrap().json().await.unwrap();
+    let job: Value = c
+        .post(format!("{}/v1/jobs", s.base))
+        .json(&serde_json::json!({"scene_id": sid, "query": "the lamp"}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     let tid = job["id"].as_str().unwrap().to_string();
     wait_status(&c, &format!("{}/v1/jobs/{tid}", s.base), "running").await;
     signal(&mut s.child, "-TERM");
     let store = grounder::store::Store::open(dir.path()).await.unwrap();
     let rec = store.get_job(&tid).await.unwrap().unwrap();
-    assert_eq!((rec.status.as_str(), rec.attempts, rec.result.is_none()), ("queued", 0, true));
+    assert_eq!(
+        (rec.status.as_str(), rec.attempts, rec.result.is_none()),
+        ("queued", 0, true)
+    );
     drop(store);
 
     // A job that keeps dying with the process is given up after 3 attempts, with a reason.
@@ -91,7 +147,20 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
         signal(&mut s.child, "-KILL");
     }
     let mut s = start(dir.path(), 100);
-    let (_, j) = (0, c.get(format!("{}/v1/jobs/{tid}", s.base)).send().await.unwrap().json::<Value>().await.unwrap());
-    assert_eq!((j["status"].as_str(), j["error"]["code"].as_str()), (Some("failed"), Some("too_many_attempts")), "{j}");
+    let (_, j) = (
+        0,
+        c.get(format!("{}/v1/jobs/{tid}", s.base))
+            .send()
+            .await
+            .unwrap()
+            .json::<Value>()
+            .await
+            .unwrap(),
+    );
+    assert_eq!(
+        (j["status"].as_str(), j["error"]["code"].as_str()),
+        (Some("failed"), Some("too_many_attempts")),
+        "{j}"
+    );
     signal(&mut s.child, "-TERM");
 }

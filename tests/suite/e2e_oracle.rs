@@ -134,7 +134,10 @@ fn oracle_pipeline_grounds_synthetic_scenes_over_http() {
         &["serve", "--addr", "127.0.0.1:0", "--data-dir", &data],
         &[
             ("GROUNDER_DETECTOR", "oracle".into()),
-            ("GROUNDER_SEGMENTER", std::env::var("E2E_SEGMENTER").unwrap_or_else(|_| "depth".into())),
+            (
+                "GROUNDER_SEGMENTER",
+                std::env::var("E2E_SEGMENTER").unwrap_or_else(|_| "depth".into()),
+            ),
             ("GROUNDER_VLM_BASE_URL", format!("{oracle_url}/v1")),
             ("GROUNDER_VLM_MODEL", "oracle".into()),
             ("GROUNDER_VLM_API_KEY", "x".into()),

@@ -309,7 +309,14 @@ fn cli_in_process_mode_reports_a_bad_dataset_in_one_line() {
     let root = tempfile::tempdir().unwrap();
     let out = root.path().join("report");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"))
-        .args(["eval", "--dataset", "no-such-dataset", "--scenes", "y", "--out"])
+        .args([
+            "eval",
+            "--dataset",
+            "no-such-dataset",
+            "--scenes",
+            "y",
+            "--out",
+        ])
         .arg(&out)
         .env("GROUNDER_PIPELINE", "test")
         .env("GROUNDER_DETECTOR", "none")
@@ -318,5 +325,8 @@ fn cli_in_process_mode_reports_a_bad_dataset_in_one_line() {
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     let last = err.lines().last().unwrap_or("");
-    assert!(last.starts_with("error: ") && last.contains("no-such-dataset"), "{err}");
+    assert!(
+        last.starts_with("error: ") && last.contains("no-such-dataset"),
+        "{err}"
+    );
 }

@@ -2,20 +2,27 @@
 
 use grounder::geometry::camera::look_at_pose;
 use grounder::geometry::{
-    backproject_mask, chamfer_distance, project_points, statistical_outlier_indices, voxel_downsample, Aabb,
-    BackprojectOptions, DepthMap, FrameCamera, GeometryParams, Intrinsics, Mask,
+    backproject_mask, chamfer_distance, project_points, statistical_outlier_indices,
+    voxel_downsample, Aabb, BackprojectOptions, DepthMap, FrameCamera, GeometryParams, Intrinsics,
+    Mask,
 };
 use nalgebra::{Matrix4, Point3, Rotation3, Vector3};
 use proptest::prelude::*;
 
 fn aabb() -> impl Strategy<Value = Aabb> {
-    (prop::array::uniform3(-5.0f64..5.0), prop::array::uniform3(0.01f64..3.0))
+    (
+        prop::array::uniform3(-5.0f64..5.0),
+        prop::array::uniform3(0.01f64..3.0),
+    )
         .prop_map(|(lo, s)| Aabb::new(lo, [lo[0] + s[0], lo[1] + s[1], lo[2] + s[2]]))
 }
 
 fn cloud(max: usize) -> impl Strategy<Value = Vec<Point3<f64>>> {
-    prop::collection::vec(prop::array::uniform3(-2.0f64..2.0), 1..max)
-        .prop_map(|v| v.into_iter().map(|p| Point3::new(p[0], p[1], p[2])).collect())
+    prop::collection::vec(prop::array::uniform3(-2.0f64..2.0), 1..max).prop_map(|v| {
+        v.into_iter()
+            .map(|p| Point3::new(p[0], p[1], p[2]))
+            .collect()
+    })
 }
 
 proptest! {

@@ -167,7 +167,12 @@ impl<'a> ViewCaster<'a> {
             .iter()
             .map(|(ob, c)| {
                 let b = ob.gt_box();
-                let mut bb = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+                let mut bb = [
+                    f64::INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::NEG_INFINITY,
+                ];
                 for i in 0..8 {
                     let p = Point3::new(
                         if i & 1 == 0 { b.min[0] } else { b.max[0] },
@@ -176,7 +181,12 @@ impl<'a> ViewCaster<'a> {
                     );
                     let pc = inv.transform_point(&p);
                     if pc.z < 0.05 {
-                        bb = [f64::NEG_INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY];
+                        bb = [
+                            f64::NEG_INFINITY,
+                            f64::NEG_INFINITY,
+                            f64::INFINITY,
+                            f64::INFINITY,
+                        ];
                         break;
                     }
                     let (u, v) = (k.fx * pc.x / pc.z + k.cx, k.fy * pc.y / pc.z + k.cy);
@@ -201,7 +211,11 @@ impl<'a> ViewCaster<'a> {
     /// (t along the un-normalised camera ray = camera depth z, |cos| to normal, instance id).
     fn cast(&self, x: u32, y: u32) -> (f64, f64, u16) {
         let (u, v) = (x as f64, y as f64);
-        let dc = [(u - self.k.cx) / self.k.fx, (v - self.k.cy) / self.k.fy, 1.0];
+        let dc = [
+            (u - self.k.cx) / self.k.fx,
+            (v - self.k.cy) / self.k.fy,
+            1.0,
+        ];
         let d = self.r.map(|r| r[0] * dc[0] + r[1] * dc[1] + r[2] * dc[2]);
         let (mut t, mut cos) = room_hit(&Point3::from(self.o), &Vector3::from(d));
         let mut id = 0;
@@ -225,7 +239,12 @@ fn gauss(rng: &mut ChaCha8Rng) -> f64 {
 }
 
 /// Render the depth map of a camera with true pose `pose_a` (aligned frame), with noise.
-fn render_depth(casters: &[(Object, Caster)], k: &Intrinsics, pose_a: &Matrix4<f64>, rng: &mut ChaCha8Rng) -> DepthMap {
+fn render_depth(
+    casters: &[(Object, Caster)],
+    k: &Intrinsics,
+    pose_a: &Matrix4<f64>,
+    rng: &mut ChaCha8Rng,
+) -> DepthMap {
     let (w, h) = (k.width as usize, k.height as usize);
     let vc = ViewCaster::new(casters, k, pose_a);
     let mut clean = vec![0.0f64; w * h];
@@ -270,7 +289,11 @@ fn render_depth(casters: &[(Object, Caster)], k: &Intrinsics, pose_a: &Matrix4<f
     DepthMap::new(k.width, k.height, data)
 }
 
-fn render_instance(casters: &[(Object, Caster)], k: &Intrinsics, pose_a: &Matrix4<f64>) -> Vec<u16> {
+fn render_instance(
+    casters: &[(Object, Caster)],
+    k: &Intrinsics,
+    pose_a: &Matrix4<f64>,
+) -> Vec<u16> {
     let vc = ViewCaster::new(casters, k, pose_a);
     let mut out = Vec::with_capacity((k.width * k.height) as usize);
     for y in 0..k.height {
@@ -290,15 +313,15 @@ pub fn default_objects() -> Vec<Object> {
         yaw,
     };
     vec![
-        b(1, [0.0, 0.0, 0.375], [1.2, 0.8, 0.75], 0.3),    // table
-        b(2, [0.1, 0.05, 0.875], [0.3, 0.25, 0.25], 0.9),  // box on the table
-        b(3, [-1.4, 1.2, 0.45], [0.5, 0.5, 0.9], -0.4),    // chair-sized block
-        b(4, [1.6, -1.3, 0.4], [1.8, 0.8, 0.8], 0.6),      // sofa
-        b(5, [-2.5, -1.5, 0.6], [0.5, 1.0, 1.2], 0.0),     // cabinet near a wall
-        b(6, [1.8, 1.6, 0.2], [0.35, 0.35, 0.4], 0.2),     // bin
+        b(1, [0.0, 0.0, 0.375], [1.2, 0.8, 0.75], 0.3), // table
+        b(2, [0.1, 0.05, 0.875], [0.3, 0.25, 0.25], 0.9), // box on the table
+        b(3, [-1.4, 1.2, 0.45], [0.5, 0.5, 0.9], -0.4), // chair-sized block
+        b(4, [1.6, -1.3, 0.4], [1.8, 0.8, 0.8], 0.6),   // sofa
+        b(5, [-2.5, -1.5, 0.6], [0.5, 1.0, 1.2], 0.0),  // cabinet near a wall
+        b(6, [1.8, 1.6, 0.2], [0.35, 0.35, 0.4], 0.2),  // bin
         b(7, [-0.9, -1.2, 0.06], [0.12, 0.12, 0.12], 0.5), // small (not counted)
-        b(8, [2.3, 0.2, 0.35], [0.4, 0.6, 0.7], -0.2),     // nightstand
-        b(9, [-0.4, 1.9, 0.075], [0.15, 0.1, 0.15], 0.0),  // small (not counted)
+        b(8, [2.3, 0.2, 0.35], [0.4, 0.6, 0.7], -0.2),  // nightstand
+        b(9, [-0.4, 1.9, 0.075], [0.15, 0.1, 0.15], 0.0), // small (not counted)
     ]
 }
 
@@ -314,7 +337,12 @@ pub fn render_scene(seed: u64, cw: u32, ch: u32, n_views: usize) -> Scene {
 }
 
 /// Render `n_views` views with explicit colour and depth image sizes.
-pub fn render_scene_sized(seed: u64, (cw, ch): (u32, u32), (dw, dh): (u32, u32), n_views: usize) -> Scene {
+pub fn render_scene_sized(
+    seed: u64,
+    (cw, ch): (u32, u32),
+    (dw, dh): (u32, u32),
+    n_views: usize,
+) -> Scene {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let objects = default_objects();
     let casters: Vec<_> = objects.iter().map(|o| (*o, Caster::new(o))).collect();
@@ -344,9 +372,17 @@ pub fn render_scene_sized(seed: u64, (cw, ch): (u32, u32), (dw, dh): (u32, u32),
         let instance = render_instance(&casters, &color, &pose_a);
         // Stored pose: world frame, with estimation error (~0.6 deg, ~1 cm).
         let axis = Vector3::new(gauss(&mut rng), gauss(&mut rng), gauss(&mut rng)).normalize();
-        let jitter = Translation3::new(0.01 * gauss(&mut rng), 0.01 * gauss(&mut rng), 0.01 * gauss(&mut rng))
-            .to_homogeneous()
-            * Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), 0.01 * gauss(&mut rng)).to_homogeneous();
+        let jitter = Translation3::new(
+            0.01 * gauss(&mut rng),
+            0.01 * gauss(&mut rng),
+            0.01 * gauss(&mut rng),
+        )
+        .to_homogeneous()
+            * Rotation3::from_axis_angle(
+                &nalgebra::Unit::new_normalize(axis),
+                0.01 * gauss(&mut rng),
+            )
+            .to_homogeneous();
         let pose = align_inv * jitter * pose_a;
         let camera = FrameCamera {
             color,

@@ -5,7 +5,9 @@
 use crate::geometry_scene;
 
 use geometry_scene::{render_scene, Scene};
-use grounder::geometry::{find_views, fuse_views, mask_points, single_view_box, CandidateFrame, GeometryParams};
+use grounder::geometry::{
+    find_views, fuse_views, mask_points, single_view_box, CandidateFrame, GeometryParams,
+};
 
 const W: u32 = 320;
 const H: u32 = 240;
@@ -77,7 +79,10 @@ fn evaluate(scene: &Scene, p: &GeometryParams) -> anyhow::Result<Vec<Outcome>> {
         for c in &found {
             let v = &scene.views[c.index];
             if let Some(id) = v.majority_id(&c.pixels) {
-                others.push((c.index, mask_points(&v.mask_of(id), &v.camera, &v.depth, p)?));
+                others.push((
+                    c.index,
+                    mask_points(&v.mask_of(id), &v.camera, &v.depth, p)?,
+                ));
             }
         }
         let fused = fuse_views(&anchor, &others, p);
@@ -157,7 +162,9 @@ fn projection_then_backprojection_is_identity_within_noise() -> anyhow::Result<(
             anyhow::bail!("point {q} behind its own camera")
         };
         // A point from pixel (x, y) reprojects onto (x, y) and reads back its own depth.
-        max_px = max_px.max((pr.u - pr.u.round()).abs()).max((pr.v - pr.v.round()).abs());
+        max_px = max_px
+            .max((pr.u - pr.u.round()).abs())
+            .max((pr.v - pr.v.round()).abs());
         visible += pr.visible as usize;
     }
     assert!(max_px < 1e-6, "reprojection off the pixel grid by {max_px}");
@@ -174,7 +181,8 @@ fn chamfer_filter_drops_a_wrongly_segmented_view() -> anyhow::Result<()> {
     let scene = render_scene(4, W, H, 12);
     let p = params();
     let (target, wrong) = (1u16, 4u16); // table; the agent mistakenly segments the sofa
-    let Some(best) = (0..scene.views.len()).max_by_key(|&i| scene.views[i].mask_of(target).count()) else {
+    let Some(best) = (0..scene.views.len()).max_by_key(|&i| scene.views[i].mask_of(target).count())
+    else {
         anyhow::bail!("no views");
     };
     let bv = &scene.views[best];
@@ -206,6 +214,10 @@ fn chamfer_filter_drops_a_wrongly_segmented_view() -> anyhow::Result<()> {
     assert!(r.views[0].kept, "same object dropped: {:?}", r.views[0]);
     assert!(!r.views[1].kept, "wrong object kept: {:?}", r.views[1]);
     let gt = scene.objects[0].gt_box();
-    assert!(r.aabb.is_some_and(|b| b.iou(&gt) > 0.5), "{:?} vs {gt:?}", r.aabb);
+    assert!(
+        r.aabb.is_some_and(|b| b.iou(&gt) > 0.5),
+        "{:?} vs {gt:?}",
+        r.aabb
+    );
     Ok(())
 }

@@ -12,7 +12,10 @@ fn room(w: f64, d: f64, h: f64) -> Vec<Slab> {
         ([w, -0.1, 0.0], [w + 0.1, d + 0.1, h]),
         ([-0.1, -0.1, 0.0], [w + 0.1, 0.0, h]),
         ([-0.1, d, 0.0], [w + 0.1, d + 0.1, h]),
-        ([w / 2.0 - 0.5, d / 2.0 - 0.4, 0.0], [w / 2.0 + 0.5, d / 2.0 + 0.4, 0.75]),
+        (
+            [w / 2.0 - 0.5, d / 2.0 - 0.4, 0.0],
+            [w / 2.0 + 0.5, d / 2.0 + 0.4, 0.75],
+        ),
     ]
 }
 
@@ -23,21 +26,37 @@ fn ring(cx: f64, cy: f64, r: f64) -> Vec<FrameCamera> {
         .map(|k| {
             let a = f64::from(k) * 30f64.to_radians();
             let eye = [cx + r * a.cos(), cy + r * a.sin(), 1.5];
-            camera(eye, [cx + 3.0 * a.cos(), cy + 3.0 * a.sin(), if k % 2 == 0 { 1.0 } else { 2.3 }])
+            camera(
+                eye,
+                [
+                    cx + 3.0 * a.cos(),
+                    cy + 3.0 * a.sin(),
+                    if k % 2 == 0 { 1.0 } else { 2.3 },
+                ],
+            )
         })
         .collect()
 }
 
 fn params() -> LayoutParams {
     // The test frames are 40 x 30: every depth pixel is sampled.
-    LayoutParams { sample_step: 1, ..LayoutParams::default() }
+    LayoutParams {
+        sample_step: 1,
+        ..LayoutParams::default()
+    }
 }
 
 /// The layout from `cams`' depth of `scene`, read in an output frame turned by `turn`
 /// degrees about +z (the scene is rendered in the world frame).
 fn estimate(cams: &[FrameCamera], scene: &[Slab], range: f64, turn: f64) -> Option<RoomLayout> {
     let maps: Vec<DepthMap> = cams.iter().map(|c| render(c, scene, range)).collect();
-    let turned: Vec<FrameCamera> = cams.iter().map(|c| FrameCamera { align: Matrix4::new_rotation(Vector3::z() * turn.to_radians()), ..*c }).collect();
+    let turned: Vec<FrameCamera> = cams
+        .iter()
+        .map(|c| FrameCamera {
+            align: Matrix4::new_rotation(Vector3::z() * turn.to_radians()),
+            ..*c
+        })
+        .collect();
     let frames: Vec<(&FrameCamera, &DepthMap)> = turned.iter().zip(&maps).collect();
     estimate_room(&frames, &params())
 }
@@ -50,29 +69,52 @@ fn near(a: Option<f64>, b: f64, tol: f64) -> bool {
 fn a_box_room_is_found_with_its_floor_ceiling_and_walls() {
     let l = estimate(&ring(3.0, 2.5, 0.8), &room(6.0, 5.0, 2.7), 5.0, 0.0).expect("a layout");
     assert!(l.angle_deg.abs() < 0.5, "{l:?}");
-    assert!(near(l.floor, 0.0, 0.03) && near(l.ceiling, 2.7, 0.03), "{l:?}");
+    assert!(
+        near(l.floor, 0.0, 0.03) && near(l.ceiling, 2.7, 0.03),
+        "{l:?}"
+    );
     assert!(near(l.u[0], 0.0, 0.03) && near(l.u[1], 6.0, 0.03), "{l:?}");
     assert!(near(l.v[0], 0.0, 0.03) && near(l.v[1], 5.0, 0.03), "{l:?}");
     assert!(l.range <= 5.0 && l.range > 2.5, "{l:?}");
     assert_eq!(l.faced, [true; 4]);
     // From the centre along +x the ray leaves through the wall at x = 6; upwards through
     // the ceiling; from outside the room there is no answer.
-    let t = l.exit(&Point3::new(3.0, 2.5, 1.5), &Vector3::new(2.0, 0.0, 0.0)).expect("an exit");
+    let t = l
+        .exit(&Point3::new(3.0, 2.5, 1.5), &Vector3::new(2.0, 0.0, 0.0))
+        .expect("an exit");
     assert!((t - 1.5).abs() < 0.02, "t = {t}");
-    assert!(near(l.exit(&Point3::new(3.0, 2.5, 1.5), &Vector3::z()), 1.2, 0.03));
+    assert!(near(
+        l.exit(&Point3::new(3.0, 2.5, 1.5), &Vector3::z()),
+        1.2,
+        0.03
+    ));
     assert_eq!(l.exit(&Point3::new(7.0, 2.5, 1.5), &Vector3::x()), None);
     // The x walls, at any height and position along them.
     let xs = l.walls_on_axis(0, &Point3::new(1.0, 4.0, 0.3));
-    assert!(xs.len() == 2 && xs.iter().any(|&x| x.abs() < 0.03) && xs.iter().any(|&x| (x - 6.0).abs() < 0.03), "{xs:?}");
+    assert!(
+        xs.len() == 2
+            && xs.iter().any(|&x| x.abs() < 0.03)
+            && xs.iter().any(|&x| (x - 6.0).abs() < 0.03),
+        "{xs:?}"
+    );
 }
 
 #[test]
 fn a_turned_room_is_found_in_its_own_axes() {
     let l = estimate(&ring(3.0, 2.5, 0.8), &room(6.0, 5.0, 2.7), 5.0, 30.0).expect("a layout");
     assert!((l.angle_deg - 30.0).abs() < 0.5, "{l:?}");
-    assert!(near(l.u[0], 0.0, 0.04) && near(l.u[1], 6.0, 0.04) && near(l.v[0], 0.0, 0.04) && near(l.v[1], 5.0, 0.04), "{l:?}");
+    assert!(
+        near(l.u[0], 0.0, 0.04)
+            && near(l.u[1], 6.0, 0.04)
+            && near(l.v[0], 0.0, 0.04)
+            && near(l.v[1], 5.0, 0.04),
+        "{l:?}"
+    );
     // Its walls are 30 degrees off both output axes: none counts as an x or y wall.
-    assert!(l.walls_on_axis(0, &Point3::origin()).is_empty() && l.walls_on_axis(1, &Point3::origin()).is_empty());
+    assert!(
+        l.walls_on_axis(0, &Point3::origin()).is_empty()
+            && l.walls_on_axis(1, &Point3::origin()).is_empty()
+    );
 }
 
 #[test]
@@ -82,16 +124,33 @@ fn a_wall_no_frame_measured_stays_open() {
     let cams = ring(2.0, 2.5, 0.6);
     let l = estimate(&cams, &room(14.0, 5.0, 2.7), 5.0, 0.0).expect("a layout");
     assert_eq!(l.u[1], None, "{l:?}");
-    assert!(near(l.u[0], 0.0, 0.03) && near(l.v[0], 0.0, 0.03) && near(l.v[1], 5.0, 0.03), "{l:?}");
-    assert!(near(l.exit(&Point3::new(2.0, 2.5, 1.5), &-Vector3::x()), 2.0, 0.03), "towards the wall that was found");
+    assert!(
+        near(l.u[0], 0.0, 0.03) && near(l.v[0], 0.0, 0.03) && near(l.v[1], 5.0, 0.03),
+        "{l:?}"
+    );
+    assert!(
+        near(
+            l.exit(&Point3::new(2.0, 2.5, 1.5), &-Vector3::x()),
+            2.0,
+            0.03
+        ),
+        "towards the wall that was found"
+    );
     // Towards the open side no answer: the missing wall may be anywhere past what was
     // measured. A ray that meets the ceiling before it gets past the measured points
     // (x = 2.6 here; readings reach x ~ 7.7) ends there, and one that gets past them first
     // has no end.
     assert_eq!(l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::x()), None);
-    assert!(near(l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::new(0.5, 0.0, 1.0)), 1.2, 0.03));
+    assert!(near(
+        l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::new(0.5, 0.0, 1.0)),
+        1.2,
+        0.03
+    ));
     assert!(l.reach[0][1] > 6.0 && l.reach[0][1] < 8.0, "{l:?}");
-    assert_eq!(l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::new(10.0, 0.0, 1.0)), None);
+    assert_eq!(
+        l.exit(&Point3::new(2.0, 2.5, 1.5), &Vector3::new(10.0, 0.0, 1.0)),
+        None
+    );
     // No frames, or frames without readings: nothing to estimate.
     assert_eq!(estimate_room(&[], &params()), None);
     let blank = render(&cams[0], &room(14.0, 5.0, 2.7), 0.1);
@@ -122,5 +181,8 @@ fn a_frame_posed_far_away_does_not_blow_up_the_histograms() {
     cams[0].pose[(0, 3)] += 1.0e9;
     let frames: Vec<(&FrameCamera, &DepthMap)> = cams.iter().zip(&maps).collect();
     let l = estimate_room(&frames, &params()).expect("the heights are still fine");
-    assert!(near(l.floor, 0.0, 0.03) && near(l.u[0], 0.0, 0.03) && l.u[1].is_none(), "{l:?}");
+    assert!(
+        near(l.floor, 0.0, 0.03) && near(l.u[0], 0.0, 0.03) && l.u[1].is_none(),
+        "{l:?}"
+    );
 }

@@ -27,7 +27,9 @@ impl DepthSegmenter {
     pub(super) fn colour_drops_a_leak(g: &Grid, region: &[bool], coloured: &[bool]) -> bool {
         let removed = |i: usize| region[i] && !coloured[i];
         let mut seen = vec![false; region.len()];
-        let mut queue: std::collections::VecDeque<usize> = (0..region.len()).filter(|&i| removed(i) && !g.inb[i]).collect();
+        let mut queue: std::collections::VecDeque<usize> = (0..region.len())
+            .filter(|&i| removed(i) && !g.inb[i])
+            .collect();
         queue.iter().for_each(|&i| seen[i] = true);
         while let Some(i) = queue.pop_front() {
             for j in g.neighbours(i).into_iter().flatten() {
@@ -37,7 +39,9 @@ impl DepthSegmenter {
                 }
             }
         }
-        let inside: Vec<usize> = (0..region.len()).filter(|&i| removed(i) && g.inb[i]).collect();
+        let inside: Vec<usize> = (0..region.len())
+            .filter(|&i| removed(i) && g.inb[i])
+            .collect();
         let reached = inside.iter().filter(|&&i| seen[i]).count();
         2 * reached >= inside.len()
     }
@@ -78,7 +82,9 @@ impl DepthSegmenter {
         let (w, h) = (g.w, g.h);
         for i in (0..region.len()).filter(|&i| g.edge[i] && !snapshot[i] && g.inb[i]) {
             let (x, y) = (i % w, i / w);
-            if (x > 0 && x + 1 < w && snapshot[i - 1] && snapshot[i + 1]) || (y > 0 && y + 1 < h && snapshot[i - w] && snapshot[i + w]) {
+            if (x > 0 && x + 1 < w && snapshot[i - 1] && snapshot[i + 1])
+                || (y > 0 && y + 1 < h && snapshot[i - w] && snapshot[i + w])
+            {
                 region[i] = true;
             }
         }

@@ -141,7 +141,10 @@ enum Colour {
 /// factor of 4 (a face turned from the light). Near-black colours (sum under 45) carry no
 /// reliable hue: they match each other.
 fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
-    let (sm, sc) = (mid.iter().sum::<f64>(), c.iter().map(|&v| f64::from(v)).sum::<f64>());
+    let (sm, sc) = (
+        mid.iter().sum::<f64>(),
+        c.iter().map(|&v| f64::from(v)).sum::<f64>(),
+    );
     const DARK: f64 = 45.0;
     if sm < DARK || sc < DARK {
         return sm < DARK && sc < DARK;
@@ -149,7 +152,11 @@ fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
     if sc > 4.0 * sm || sm > 4.0 * sc {
         return false;
     }
-    let d: f64 = mid.iter().zip(c).map(|(m, &v)| (m / sm - f64::from(v) / sc).abs()).sum();
+    let d: f64 = mid
+        .iter()
+        .zip(c)
+        .map(|(m, &v)| (m / sm - f64::from(v) / sc).abs())
+        .sum();
     d <= tol / 765.0 * 3.0
 }
 
@@ -258,8 +265,10 @@ impl DepthSegmenter {
                 let step = (self.step_abs + self.step_rel * zi) * cell_px.max(1.0);
                 let footprint = zi * cell_px.max(1.0) / fx_depth.max(1.0);
                 let lim = step.max(2.0 * EDGE_TAN * footprint);
-                let differs = |a: usize, b: usize| z[a] > 0.0 && z[b] > 0.0 && (z[a] - z[b]).abs() > lim;
-                edge[i] = (x > 0 && x + 1 < w && differs(i - 1, i + 1)) || (y > 0 && y + 1 < h && differs(i - w, i + w));
+                let differs =
+                    |a: usize, b: usize| z[a] > 0.0 && z[b] > 0.0 && (z[a] - z[b]).abs() > lim;
+                edge[i] = (x > 0 && x + 1 < w && differs(i - 1, i + 1))
+                    || (y > 0 && y + 1 < h && differs(i - w, i + w));
             }
         }
         g.edge = edge;
@@ -314,11 +323,19 @@ impl DepthSegmenter {
 
     /// Grow from seeds at the target depth (central part of the box first).
     /// With `colour`, only cells within `colour_tol` of the seeds' median colour join.
-    fn grow(&self, g: &Grid, target: f64, cell_px: f64, blocked: &[bool], rule: Colour) -> Vec<bool> {
+    fn grow(
+        &self,
+        g: &Grid,
+        target: f64,
+        cell_px: f64,
+        blocked: &[bool],
+        rule: Colour,
+    ) -> Vec<bool> {
         let colour = rule != Colour::Off;
         let tol = 0.05 + 0.03 * target;
-        let near =
-            |i: usize| g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i] && !g.edge[i];
+        let near = |i: usize| {
+            g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i] && !g.edge[i]
+        };
         let [bx0, by0, bx1, by1] = g.b;
         let (qx, qy) = ((bx1 - bx0) / 4, (by1 - by0) / 4);
         let mut seeds: Vec<usize> = Vec::new();
@@ -347,7 +364,13 @@ impl DepthSegmenter {
         }
         let like = |i: usize| match rule {
             Colour::Off => true,
-            Colour::Rgb => mid.iter().zip(&g.rgb[i]).map(|(m, &c)| (m - f64::from(c)).abs()).sum::<f64>() <= self.colour_tol,
+            Colour::Rgb => {
+                mid.iter()
+                    .zip(&g.rgb[i])
+                    .map(|(m, &c)| (m - f64::from(c)).abs())
+                    .sum::<f64>()
+                    <= self.colour_tol
+            }
             Colour::Hue => same_hue(&mid, &g.rgb[i], self.colour_tol),
         };
         if colour {
@@ -362,7 +385,13 @@ impl DepthSegmenter {
         while let Some(i) = queue.pop_front() {
             let lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
             for j in g.neighbours(i).into_iter().flatten() {
-                if !region[j] && !blocked[j] && !g.edge[j] && g.z[j] > 0.0 && (g.z[j] - g.z[i]).abs() <= lim && like(j) {
+                if !region[j]
+                    && !blocked[j]
+                    && !g.edge[j]
+                    && g.z[j] > 0.0
+                    && (g.z[j] - g.z[i]).abs() <= lim
+                    && like(j)
+                {
                     region[j] = true;
                     queue.push_back(j);
                 }
@@ -414,7 +443,13 @@ impl DepthSegmenter {
         }
     }
 
-    fn surface_with(&self, g: &Grid, target: f64, cell_px: f64, colour: Colour) -> (Vec<bool>, f64) {
+    fn surface_with(
+        &self,
+        g: &Grid,
+        target: f64,
+        cell_px: f64,
+        colour: Colour,
+    ) -> (Vec<bool>, f64) {
         let none = vec![false; g.z.len()];
         let mut region = self.grow(g, target, cell_px, &none, colour);
         if let Some(cut) = self.support_cut(g, &region) {
@@ -436,7 +471,6 @@ impl DepthSegmenter {
             },
         )
     }
-
 }
 
 impl Segmenter for DepthSegmenter {
@@ -483,7 +517,15 @@ impl Segmenter for DepthSegmenter {
         // touching objects at one depth (pillows side by side) are one surface to depth, and
         // the coloured one then stops at the box as tightly while running past it less.
         let mut best: Option<(f64, Vec<bool>)> = None;
-        let score = |region: &[bool], outside: f64| Self::extent_fill(&g, region) * (1.0 - outside) * if outside <= self.max_outside { 1.0 } else { 0.5 };
+        let score = |region: &[bool], outside: f64| {
+            Self::extent_fill(&g, region)
+                * (1.0 - outside)
+                * if outside <= self.max_outside {
+                    1.0
+                } else {
+                    0.5
+                }
+        };
         for &m in modes.iter().take(4) {
             let (region, outside) = self.surface(&g, m, cell_px);
             let mut cands = Vec::with_capacity(2);
@@ -508,13 +550,22 @@ impl Segmenter for DepthSegmenter {
         Self::close_edges(&g, &mut region);
         Self::fill_holes(&g, &mut region);
         let mut mask = Mask::new(cw, ch);
-        let (bx0, by0, bx1, by1) = (bbox[0].floor(), bbox[1].floor(), bbox[2].ceil(), bbox[3].ceil());
+        let (bx0, by0, bx1, by1) = (
+            bbox[0].floor(),
+            bbox[1].floor(),
+            bbox[2].ceil(),
+            bbox[3].ceil(),
+        );
         for i in (0..region.len()).filter(|&i| region[i]) {
             let (gx, gy) = ((i % g.w) as u32, (i / g.w) as u32);
             for dy in 0..g.s {
                 for dx in 0..g.s {
                     let (x, y) = (g.x0 + gx * g.s + dx, g.y0 + gy * g.s + dy);
-                    if (x as f32) >= bx0 && (y as f32) >= by0 && (x as f32) < bx1 && (y as f32) < by1 {
+                    if (x as f32) >= bx0
+                        && (y as f32) >= by0
+                        && (x as f32) < bx1
+                        && (y as f32) < by1
+                    {
                         mask.set(x, y, true);
                     }
                 }

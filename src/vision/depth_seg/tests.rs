@@ -8,8 +8,21 @@ const S: u32 = 80;
 
 /// An S x S camera with focal length `f` (pixels), centred principal point, depth aligned.
 fn camera(f: f64, pose: Matrix4<f64>) -> FrameCamera {
-    let k = Intrinsics { fx: f, fy: f, cx: 39.5, cy: 39.5, width: S, height: S };
-    FrameCamera { color: k, depth: None, depth_size: (S, S), pose, align: Matrix4::identity() }
+    let k = Intrinsics {
+        fx: f,
+        fy: f,
+        cx: 39.5,
+        cy: 39.5,
+        width: S,
+        height: S,
+    };
+    FrameCamera {
+        color: k,
+        depth: None,
+        depth_size: (S, S),
+        pose,
+        align: Matrix4::identity(),
+    }
 }
 
 /// A camera looking level along +x at a wall 3.1 m away (grey). Box [30, 30, 50, 50]:
@@ -25,14 +38,25 @@ fn scene() -> (RgbImage, DepthMap, FrameCamera, Mask) {
             bin.set(x, y, true);
             color.put_pixel(x, y, Rgb([30, 30, 30]));
             // top rows ramp into the wall behind
-            depth[(y * S + x) as usize] = if y < 33 { 3100 - (y as u16 - 29) * 20 } else { 3030 };
+            depth[(y * S + x) as usize] = if y < 33 {
+                3100 - (y as u16 - 29) * 20
+            } else {
+                3030
+            };
         }
         for x in 26..38 {
             color.put_pixel(x, y, Rgb([235, 230, 225]));
             depth[(y * S + x) as usize] = 2000;
         }
     }
-    let cam = camera(80.0, look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z()));
+    let cam = camera(
+        80.0,
+        look_at_pose(
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(3.0, 0.0, 1.0),
+            Vector3::z(),
+        ),
+    );
     (color, DepthMap::new(S, S, depth), cam, bin)
 }
 
@@ -40,14 +64,45 @@ fn scene() -> (RgbImage, DepthMap, FrameCamera, Mask) {
 fn the_surface_that_fills_the_box_wins_over_a_nearer_occluder() {
     let (color, depth, cam, bin) = scene();
     let seg = DepthSegmenter::default();
-    let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [38.0, 30.0, 50.0, 50.0]).unwrap();
+    let m = seg
+        .segment(
+            &SegmentInput {
+                color: &color,
+                depth: &depth,
+                camera: &cam,
+            },
+            [38.0, 30.0, 50.0, 50.0],
+        )
+        .unwrap();
     assert!(m.iou(&bin) > 0.9, "tight box: IoU {}", m.iou(&bin));
     // The box of the visible bin plus the bed's part: the bed is nearer and stays inside.
-    let m = seg.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
+    let m = seg
+        .segment(
+            &SegmentInput {
+                color: &color,
+                depth: &depth,
+                camera: &cam,
+            },
+            [30.0, 30.0, 50.0, 50.0],
+        )
+        .unwrap();
     assert!(m.iou(&bin) > 0.8, "bed in front: IoU {}", m.iou(&bin));
     // On depth alone the bin runs onto the wall and past the box, and the bed wins.
-    let depth_only = DepthSegmenter { colour_tol: f64::INFINITY, colour_alternative: false, ..DepthSegmenter::default() };
-    let m = depth_only.segment(&SegmentInput { color: &color, depth: &depth, camera: &cam }, [30.0, 30.0, 50.0, 50.0]).unwrap();
+    let depth_only = DepthSegmenter {
+        colour_tol: f64::INFINITY,
+        colour_alternative: false,
+        ..DepthSegmenter::default()
+    };
+    let m = depth_only
+        .segment(
+            &SegmentInput {
+                color: &color,
+                depth: &depth,
+                camera: &cam,
+            },
+            [30.0, 30.0, 50.0, 50.0],
+        )
+        .unwrap();
     assert!(m.iou(&bin) < 0.2, "depth only: IoU {}", m.iou(&bin));
 }
 
@@ -70,14 +125,39 @@ fn flying_pixels_do_not_bridge_an_object_to_the_wall_behind() {
         }
     }
     let depth = DepthMap::new(S, S, depth);
-    let cam = camera(800.0, look_at_pose(Point3::new(0.0, 0.0, 3.0), Point3::new(0.0, 0.0, 0.0), Vector3::x()));
-    let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+    let cam = camera(
+        800.0,
+        look_at_pose(
+            Point3::new(0.0, 0.0, 3.0),
+            Point3::new(0.0, 0.0, 0.0),
+            Vector3::x(),
+        ),
+    );
+    let input = SegmentInput {
+        color: &color,
+        depth: &depth,
+        camera: &cam,
+    };
     // A loose box: the wall shows in its border.
     let bbox = [26.0, 26.0, 54.0, 54.0];
-    let m = DepthSegmenter { block_edges: true, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
+    let m = DepthSegmenter {
+        block_edges: true,
+        ..DepthSegmenter::default()
+    }
+    .segment(&input, bbox)
+    .unwrap();
     assert!(m.iou(&block) > 0.9, "IoU {}", m.iou(&block));
-    let bridged = DepthSegmenter { block_edges: false, ..DepthSegmenter::default() }.segment(&input, bbox).unwrap();
-    assert!(bridged.iou(&block) < m.iou(&block), "without edge blocking: IoU {}", bridged.iou(&block));
+    let bridged = DepthSegmenter {
+        block_edges: false,
+        ..DepthSegmenter::default()
+    }
+    .segment(&input, bbox)
+    .unwrap();
+    assert!(
+        bridged.iou(&block) < m.iou(&block),
+        "without edge blocking: IoU {}",
+        bridged.iou(&block)
+    );
 }
 
 #[test]
@@ -95,8 +175,19 @@ fn a_slanted_surface_is_not_taken_for_an_edge() {
         }
     }
     let depth = DepthMap::new(S, S, depth);
-    let cam = camera(80.0, look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z()));
-    let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+    let cam = camera(
+        80.0,
+        look_at_pose(
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(3.0, 0.0, 1.0),
+            Vector3::z(),
+        ),
+    );
+    let input = SegmentInput {
+        color: &color,
+        depth: &depth,
+        camera: &cam,
+    };
     let seg = DepthSegmenter::from_spec("edges=on").unwrap();
     assert!(seg.block_edges);
     let m = seg.segment(&input, [29.0, 29.0, 51.0, 51.0]).unwrap();
@@ -131,15 +222,29 @@ fn touching_objects_at_one_depth_are_told_apart_by_colour() {
             }
         }
     }
-    let cam = camera(80.0, look_at_pose(Point3::new(0.0, 0.0, 1.0), Point3::new(3.0, 0.0, 1.0), Vector3::z()));
+    let cam = camera(
+        80.0,
+        look_at_pose(
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(3.0, 0.0, 1.0),
+            Vector3::z(),
+        ),
+    );
     let depth = DepthMap::new(S, S, depth);
-    let input = SegmentInput { color: &color, depth: &depth, camera: &cam };
+    let input = SegmentInput {
+        color: &color,
+        depth: &depth,
+        camera: &cam,
+    };
     let bbox = [20.0, 30.0, 40.0, 50.0];
     let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
     assert!(m.iou(&green) > 0.9, "with colour: IoU {}", m.iou(&green));
     // On depth alone both pillows are one surface (running past the box by less than
     // `max_outside`, so no regrowth is forced) and the pink corner stays in.
-    let m = DepthSegmenter::from_spec("colour=off").unwrap().segment(&input, bbox).unwrap();
+    let m = DepthSegmenter::from_spec("colour=off")
+        .unwrap()
+        .segment(&input, bbox)
+        .unwrap();
     assert!(m.iou(&green) < 0.8, "depth alone: IoU {}", m.iou(&green));
     assert!(DepthSegmenter::from_spec("colour=maybe").is_err());
 }
