@@ -113,7 +113,14 @@ pub async fn redetect(
 
 /// Read a 16-bit instance-id PNG.
 pub fn read_instance_mask(path: &std::path::Path) -> anyhow::Result<InstanceMask> {
-    let img = image::open(path)
+    let mut reader = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(|e| anyhow::anyhow!("cannot read instance mask {}: {e}", path.display()))?;
+    reader.limits(crate::scene::import::decode_limits(
+        crate::scene::import::DEFAULT_MAX_IMAGE_PIXELS,
+    ));
+    let img = reader
+        .decode()
         .map_err(|e| anyhow::anyhow!("cannot read instance mask {}: {e}", path.display()))?
         .into_luma16();
     Ok(InstanceMask {
