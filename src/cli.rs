@@ -26,6 +26,8 @@ pub enum Command {
     RetrievalBench(crate::stitch::cli::RetrievalBenchArgs),
     /// Run a 2D detector on images and print one JSON line per detection.
     Detect(crate::vision::cli::DetectArgs),
+    /// Draw the class-agnostic object candidates of a scene directory's frames.
+    Candidates(crate::vision::candidates_cli::CandidatesArgs),
     /// Serve an OpenAI-compatible chat API that answers from ground truth.
     OracleVlm(crate::eval::cli::OracleVlmArgs),
     /// Evaluate the service on an annotated dataset.
@@ -57,6 +59,7 @@ pub fn main() -> ExitCode {
             Command::StitchPlan(a) => crate::stitch::cli::run_plan(a),
             Command::RetrievalBench(a) => crate::stitch::cli::run_retrieval_bench(a).await,
             Command::Detect(a) => crate::vision::cli::run(a),
+            Command::Candidates(a) => crate::vision::candidates_cli::run(a),
             Command::OracleVlm(a) => crate::eval::cli::run_oracle_vlm(a).await,
             Command::Eval(a) => crate::eval::cli::run_eval(a).await,
             Command::Convert(a) => crate::eval::cli::run_convert(a),

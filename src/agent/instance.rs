@@ -53,7 +53,7 @@ pub async fn select(
     image: &RgbImage,
     dets: &[Detection],
     kind: SelectKind,
-) -> Result<[f32; 4], JobFailure> {
+) -> Result<(usize, [f32; 4]), JobFailure> {
     let t = Instant::now();
     let boxes: Vec<(String, [f32; 4])> = dets
         .iter()
@@ -108,7 +108,7 @@ pub async fn select(
                     t,
                 )
                 .await;
-                return Ok(dets[i].bbox);
+                return Ok((i, dets[i].bbox));
             }
             Ok(a) => (
                 g.prompts

@@ -13,7 +13,7 @@ use super::proposal::{not_here, BoxSource, Outcome};
 use super::{step, VlmGrounder};
 use crate::geometry::estimate_room;
 use crate::jobs::{JobContext, JobFailure};
-use crate::vision::candidates::frame_candidates;
+use crate::vision::candidates::{box_iou, frame_candidates};
 use crate::vision::Detection;
 use crate::vlm::json::QueryAnalysis;
 use crate::vlm::CallBudget;
@@ -34,7 +34,10 @@ async fn candidates_of(
         return Ok((c, "index"));
     }
     let (scene, img) = (ctx.scene.clone(), image.clone());
-    let (cp, lp) = (g.params.candidates.clone(), g.params.geometry.layout.clone());
+    let (cp, lp) = (
+        g.params.candidates.clone(),
+        g.params.geometry.layout.clone(),
+    );
     let found = tokio::task::spawn_blocking(move || {
         let frames: Vec<_> = scene
             .usable_frames()
@@ -57,8 +60,8 @@ async fn candidates_of(
     Ok((dets, "computed"))
 }
 
-/// Offer the candidates of image `idx` as marks; `why` says why the detector did not give
-/// the box.
+/// Offer the candidates of image `idx` as marks, after the detector's boxes `dets` (of the
+/// target class, possibly none); `why` says why marks are used.
 #[allow(clippy::too_many_arguments)]
 pub async fn select(
     g: &VlmGrounder,
@@ -68,14 +71,29 @@ pub async fn select(
     analysis: &QueryAnalysis,
     idx: usize,
     image: &RgbImage,
+    dets: &[Detection],
     why: &str,
 ) -> Result<Outcome, JobFailure> {
     let t = Instant::now();
-    let (cands, source) = candidates_of(g, ctx, idx, image).await?;
+    let (found, source) = candidates_of(g, ctx, idx, image).await?;
+    let dedupe = g.params.candidates.dedupe_iou;
+    let mut cands: Vec<Detection> = dets.to_vec();
+    cands.extend(
+        found
+            .into_iter()
+            .filter(|c| dets.iter().all(|d| box_iou(&d.bbox, &c.bbox) <= dedupe)),
+    );
     let listed: Vec<_> = cands
         .iter()
         .enumerate()
-        .map(|(i, c)| json!({"id": i, "box": c.bbox, "kind": c.label}))
+        .map(|(i, c)| {
+            let kind = if i < dets.len() {
+                "detection"
+            } else {
+                c.label.as_str()
+            };
+            json!({"id": i, "box": c.bbox, "kind": kind, "label": c.label})
+        })
         .collect();
     step(
         ctx,
@@ -93,7 +111,7 @@ pub async fn select(
             format!("no candidate region in image {idx:05}"),
         ));
     }
-    let bbox = instance::select(
+    let (i, bbox) = instance::select(
         g,
         ctx,
         budget,
@@ -105,5 +123,10 @@ pub async fn select(
         SelectKind::Marks,
     )
     .await?;
-    Ok(Outcome::Box(bbox, BoxSource::Marks))
+    let source = if i < dets.len() {
+        BoxSource::Detector
+    } else {
+        BoxSource::Marks
+    };
+    Ok(Outcome::Box(bbox, source))
 }

@@ -65,7 +65,18 @@ pub async fn propose(
     }
     let Some(det_class) = &pre.detector_class else {
         if g.params.candidates.enabled {
-            return marks::select(g, ctx, budget, conv, analysis, idx, image, "the detector has no class for the target").await;
+            return marks::select(
+                g,
+                ctx,
+                budget,
+                conv,
+                analysis,
+                idx,
+                image,
+                &[],
+                "the detector has no class for the target",
+            )
+            .await;
         }
         return Err(JobFailure::new(
             "detector_cannot_see_class",
@@ -90,10 +101,16 @@ pub async fn propose(
         td,
     )
     .await;
+    let cands = &g.params.candidates;
+    if cands.enabled && (dets.is_empty() || cands.beside_detections) {
+        let why = if dets.is_empty() {
+            "the detector found no target in the chosen image"
+        } else {
+            "candidates are offered beside the detections"
+        };
+        return marks::select(g, ctx, budget, conv, analysis, idx, image, &dets, why).await;
+    }
     match dets.len() {
-        0 if g.params.candidates.enabled => {
-            marks::select(g, ctx, budget, conv, analysis, idx, image, "the detector found no target in the chosen image").await
-        }
         0 => Ok(not_here(
             g,
             idx,
@@ -112,7 +129,7 @@ pub async fn propose(
             Ok(Outcome::Box(dets[0].bbox, BoxSource::Detector))
         }
         _ => {
-            let bbox = instance::select(
+            let (_, bbox) = instance::select(
                 g,
                 ctx,
                 budget,

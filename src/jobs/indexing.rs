@@ -7,10 +7,10 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
+use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
 use crate::jobs::JobSystem;
 use crate::scene::FrameData;
 use crate::store::Store;
-use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
 use crate::vision::candidates::{frame_candidates, CandidateParams};
 use crate::vision::{DetectInput, Detection, Detector};
 
@@ -121,6 +121,18 @@ pub fn hook(
             {
                 tracing::error!(scene = %scene_id, "cannot record indexing outcome: {e}");
             }
+            if status == "failed" {
+                // Jobs already queued on it would wait forever: they fail with its reason.
+                match store.fail_queued_jobs_of_failed_scenes().await {
+                    Ok(n) if n > 0 => {
+                        tracing::warn!(scene = %scene_id, jobs = n, "failed the jobs queued on a scene that failed indexing")
+                    }
+                    Ok(_) => {}
+                    Err(e) => {
+                        tracing::error!(scene = %scene_id, "cannot fail the queued jobs: {e}")
+                    }
+                }
+            }
             jobs.wake();
         });
     })
@@ -128,6 +140,7 @@ pub fn hook(
 
 /// Restart indexing of scenes a previous process left half-indexed.
 pub async fn resume(store: &Store, hook: &IndexHook) -> anyhow::Result<()> {
+    store.fail_queued_jobs_of_failed_scenes().await?;
     for id in store.scenes_with_status("indexing").await? {
         hook(id);
     }
@@ -160,7 +173,10 @@ async fn index_scene(
         Some(setup) if setup.layout.enabled => {
             let (frames, lp) = (usable.clone(), setup.layout.clone());
             tokio::task::spawn_blocking(move || {
-                let pairs: Vec<_> = frames.iter().map(|f| (&f.camera, f.depth.as_ref())).collect();
+                let pairs: Vec<_> = frames
+                    .iter()
+                    .map(|f| (&f.camera, f.depth.as_ref()))
+                    .collect();
                 estimate_room(&pairs, &lp).map(Arc::new)
             })
             .await?

@@ -1,6 +1,7 @@
 //! A pipeline for tests of the service itself (`pipeline = "test:delay_ms=N"`): it waits,
 //! writes a trace and answers the box of the scene's usable camera centres. It exercises
-//! the queue, cancellation, traces and restarts without any model.
+//! the queue, cancellation, traces and restarts without any model. A query containing
+//! `[fail]` fails, one containing `[panic]` panics (tests of the workers' isolation).
 
 use futures::future::BoxFuture;
 use serde_json::json;
@@ -44,6 +45,10 @@ impl Grounder for TestGrounder {
                     json!({"query": ctx.query, "frames": ctx.scene.frames.len()}),
                 )
                 .await;
+            if ctx.query.contains("[panic]") {
+                // A test hook: a bug in a pipeline must end its job, not the worker.
+                panic!("the test pipeline panics on queries containing [panic]");
+            }
             if ctx.query.contains("[fail]") {
                 return Err(JobFailure::new(
                     "no_target_found",

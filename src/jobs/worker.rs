@@ -152,7 +152,27 @@ impl JobSystem {
                     ),
                     cancel: token.clone(),
                 };
-                self.grounder.ground(ctx).await
+                // Each job runs in a task of its own: a panic in the pipeline ends this
+                // job `failed` (kind `internal`) and the worker goes on to the next one.
+                let grounder = self.grounder.clone();
+                match tokio::spawn(async move { grounder.ground(ctx).await }).await {
+                    Ok(outcome) => outcome,
+                    Err(e) => {
+                        let why = match e.try_into_panic() {
+                            Ok(p) => p
+                                .downcast_ref::<&str>()
+                                .map(|s| s.to_string())
+                                .or_else(|| p.downcast_ref::<String>().cloned())
+                                .unwrap_or_else(|| "a panic without a message".into()),
+                            Err(e) => e.to_string(),
+                        };
+                        tracing::error!(job = %job.id, "the job's pipeline panicked: {why}");
+                        Err(JobFailure::new(
+                            "internal",
+                            "the pipeline stopped on an internal error; the server log has the cause",
+                        ))
+                    }
+                }
             }
             Err(e) => Err(e),
         };

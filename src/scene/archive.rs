@@ -8,6 +8,7 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::path::{Component, Path, PathBuf};
 
+use super::archive_guard::{check_zip_directory, Counted, TarGuard};
 use super::SceneError;
 
 /// The archive kinds we accept.
@@ -134,17 +135,44 @@ pub fn unpack(
         files: 0,
     };
     match kind {
-        ArchiveKind::Tar => unpack_tar(std::io::BufReader::new(file), dest, &mut budget),
-        ArchiveKind::TarGz => unpack_tar(
-            flate2::read::GzDecoder::new(std::io::BufReader::new(file)),
-            dest,
-            &mut budget,
-        ),
-        ArchiveKind::Zip => unpack_zip(file, dest, &mut budget),
+        ArchiveKind::Tar => {
+            let guard = TarGuard::new(std::io::BufReader::new(file), limits.max_bytes, None);
+            unpack_tar(guard, dest, &mut budget)
+        }
+        ArchiveKind::TarGz => {
+            let packed = std::rc::Rc::new(std::cell::RefCell::new(0u64));
+            let counted = Counted {
+                inner: std::io::BufReader::new(file),
+                count: packed.clone(),
+            };
+            let guard = TarGuard::new(
+                flate2::read::GzDecoder::new(counted),
+                limits.max_bytes,
+                Some(packed),
+            );
+            unpack_tar(guard, dest, &mut budget)
+        }
+        ArchiveKind::Zip => {
+            let mut file = file;
+            check_zip_directory(&mut file, limits.max_files)?;
+            unpack_zip(file, dest, &mut budget)
+        }
     }
 }
 
-fn unpack_tar<R: Read>(r: R, dest: &Path, budget: &mut Budget) -> Result<(), SceneError> {
+/// Unpack through the guard; a refusal of the guard's is the error, not the tar reader's
+/// report of the failed read.
+fn unpack_tar<R: Read>(r: TarGuard<R>, dest: &Path, budget: &mut Budget) -> Result<(), SceneError> {
+    let refused = r.refused.clone();
+    let result = unpack_tar_entries(r, dest, budget);
+    let refusal = refused.borrow_mut().take();
+    match refusal {
+        Some(e) => Err(e),
+        None => result,
+    }
+}
+
+fn unpack_tar_entries<R: Read>(r: R, dest: &Path, budget: &mut Budget) -> Result<(), SceneError> {
     let mut ar = tar::Archive::new(r);
     let entries = ar
         .entries()

@@ -2,6 +2,7 @@
 //! scene the pipeline works on.
 
 pub mod archive;
+pub mod archive_guard;
 pub mod format;
 pub mod import;
 pub mod model;

@@ -194,6 +194,22 @@ impl Store {
         Ok(r?.rows_affected() == 1)
     }
 
+    /// Fail every queued job on a scene that failed indexing, with kind `scene_failed` and
+    /// the scene's reason. Returns how many were failed.
+    pub async fn fail_queued_jobs_of_failed_scenes(&self) -> Result<u64, StoreError> {
+        let r = sqlx::query(
+            "UPDATE jobs SET status = 'failed', finished_at = ?1, \
+             error = json_object('code', 'scene_failed', 'detail', \
+                 'the scene failed to index: ' || COALESCE((SELECT s.error FROM scenes s WHERE s.id = jobs.scene_id), 'no reason recorded')) \
+             WHERE status = 'queued' AND scene_id IN (SELECT id FROM scenes WHERE status = 'failed')",
+        )
+        .bind(now_rfc3339())
+        .execute(&self.pool)
+        .await;
+        self.job_cache.invalidate();
+        Ok(r?.rows_affected())
+    }
+
     /// Put a running job back in the queue (process shutting down); the attempt is not counted.
     pub async fn requeue_job(&self, id: &str) -> Result<(), StoreError> {
         let r = sqlx::query("UPDATE jobs SET status = 'queued', attempts = MAX(attempts - 1, 0), started_at = NULL WHERE id = ? AND status = 'running'")

@@ -56,7 +56,8 @@ pub struct CandidateParams {
     pub min_cells: usize,
     /// Largest extent (m) of a candidate along any axis.
     pub max_extent: f64,
-    /// Colour tolerance of parts and wall regions (the depth segmenter's hue rule).
+    /// Colour tolerance of parts and wall regions (the depth segmenter's hue rule, tighter
+    /// than the segmenter's 60: brown against a grey wall is within 60).
     pub colour_tol: f64,
     /// A colour part must hold at least this share of its object's cells.
     pub min_part: f64,
@@ -68,6 +69,11 @@ pub struct CandidateParams {
     pub max_per_frame: usize,
     /// Box IoU above which the smaller of two candidates is dropped.
     pub dedupe_iou: f64,
+    /// Offer the candidates beside the detector's boxes too (the VLM then always picks,
+    /// even among one detection): a closed-vocabulary detector at the edge of its classes
+    /// misses instances and boxes the wrong object. Candidates overlapping a detection by
+    /// more than `dedupe_iou` are left out.
+    pub beside_detections: bool,
 }
 
 impl Default for CandidateParams {
@@ -82,12 +88,13 @@ impl Default for CandidateParams {
             step_footprints: 2.5,
             min_cells: 20,
             max_extent: 3.0,
-            colour_tol: 60.0,
+            colour_tol: 30.0,
             min_part: 0.02,
             group_step: 0.25,
             group_per_m: 0.05,
             max_per_frame: 24,
             dedupe_iou: 0.85,
+            beside_detections: true,
         }
     }
 }
@@ -199,6 +206,26 @@ fn robust_depth(depth: &DepthMap, x: u32, y: u32) -> f64 {
     f64::from(v[v.len() / 2]) / 1000.0
 }
 
+/// Mean colour of the cell at (x0, y0) of side `s`, from at most 4 x 4 of its pixels
+/// (sensor noise averages out; the cell's edge pixels are left out).
+fn cell_colour(img: &RgbImage, x0: u32, y0: u32, s: u32) -> [u8; 3] {
+    let (w, h) = img.dimensions();
+    let k = s.clamp(1, 4);
+    let (mut sum, mut n) = ([0u32; 3], 0u32);
+    for a in 0..k {
+        for b in 0..k {
+            let x = (x0 + (2 * a + 1) * s / (2 * k)).min(w - 1);
+            let y = (y0 + (2 * b + 1) * s / (2 * k)).min(h - 1);
+            let p = img.get_pixel(x, y).0;
+            for c in 0..3 {
+                sum[c] += u32::from(p[c]);
+            }
+            n += 1;
+        }
+    }
+    sum.map(|v| (v / n.max(1)) as u8)
+}
+
 fn build_grid(
     cam: &FrameCamera,
     depth: &DepthMap,
@@ -226,7 +253,7 @@ fn build_grid(
             let i = gy * w + gx;
             let u = (gx as u32 * s + s / 2).min(cw - 1);
             let v = (gy as u32 * s + s / 2).min(ch - 1);
-            g.rgb[i] = color.get_pixel(u, v).0;
+            g.rgb[i] = cell_colour(color, gx as u32 * s, gy as u32 * s, s);
             let (dx, dy) = cam.depth_pixel_for_color(f64::from(u), f64::from(v));
             let mut z = robust_depth(depth, dx, dy);
             let mut measured = true;
@@ -293,6 +320,152 @@ fn regions(sets: &mut Sets, member: impl Fn(usize) -> bool, n: usize) -> Vec<Vec
     out
 }
 
+/// The colour most of `cells` have: the mean of the most populated bin of chromaticity
+/// (8 x 8 bins of red and green shares; near-black cells in a bin of their own). A
+/// per-channel median would blend two colours of equal share into a third.
+fn dominant_colour(g: &Grid, cells: &[usize]) -> [f64; 3] {
+    let bin = |c: &[u8; 3]| {
+        let sum: u32 = c.iter().map(|&v| u32::from(v)).sum();
+        if sum < 45 {
+            return 64;
+        }
+        let r = (u32::from(c[0]) * 8 / (sum + 1)).min(7);
+        let gr = (u32::from(c[1]) * 8 / (sum + 1)).min(7);
+        (r * 8 + gr) as usize
+    };
+    let mut counts = [0usize; 65];
+    for &i in cells {
+        counts[bin(&g.rgb[i])] += 1;
+    }
+    let best = (0..65).max_by_key(|&b| counts[b]).unwrap_or(0);
+    let (mut sum, mut n) = ([0.0; 3], 0.0);
+    for &i in cells.iter().filter(|&&i| bin(&g.rgb[i]) == best) {
+        for k in 0..3 {
+            sum[k] += f64::from(g.rgb[i][k]);
+        }
+        n += 1.0;
+    }
+    sum.map(|v| v / f64::max(n, 1.0))
+}
+
+/// The 4-connected components of the cells `set`.
+fn components(g: &Grid, set: &[usize]) -> Vec<Vec<usize>> {
+    let mut member = vec![false; g.w * g.h];
+    for &i in set {
+        member[i] = true;
+    }
+    let mut out = Vec::new();
+    for &start in set {
+        if !member[start] {
+            continue;
+        }
+        member[start] = false;
+        let (mut comp, mut stack) = (Vec::new(), vec![start]);
+        while let Some(i) = stack.pop() {
+            comp.push(i);
+            let (x, y) = (i % g.w, i / g.w);
+            let mut visit = |j: usize| {
+                if member[j] {
+                    member[j] = false;
+                    stack.push(j);
+                }
+            };
+            if x > 0 {
+                visit(i - 1);
+            }
+            if x + 1 < g.w {
+                visit(i + 1);
+            }
+            if y > 0 {
+                visit(i - g.w);
+            }
+            if y + 1 < g.h {
+                visit(i + g.w);
+            }
+        }
+        out.push(comp);
+    }
+    out
+}
+
+/// Components of `set` after an opening: the cells whose four neighbours are all in the
+/// set form the cores, and every other cell joins a core it touches. A line one or two
+/// cells wide (the blended outline of a neighbouring object) no longer bridges two
+/// regions.
+fn opened_components(g: &Grid, set: &[usize]) -> Vec<Vec<usize>> {
+    let n = g.w * g.h;
+    let mut member = vec![false; n];
+    for &i in set {
+        member[i] = true;
+    }
+    let neighbours = |i: usize| {
+        let (x, y) = (i % g.w, i / g.w);
+        [
+            (x > 0).then(|| i - 1),
+            (x + 1 < g.w).then(|| i + 1),
+            (y > 0).then(|| i - g.w),
+            (y + 1 < g.h).then(|| i + g.w),
+        ]
+    };
+    let core: Vec<usize> = set
+        .iter()
+        .copied()
+        .filter(|&i| neighbours(i).iter().all(|j| j.is_some_and(|j| member[j])))
+        .collect();
+    let mut comps = components(g, &core);
+    let mut label = vec![usize::MAX; n];
+    for (k, c) in comps.iter().enumerate() {
+        for &i in c {
+            label[i] = k;
+        }
+    }
+    for &i in set.iter().filter(|&&i| label[i] == usize::MAX) {
+        if let Some(k) = neighbours(i)
+            .iter()
+            .flatten()
+            .map(|&j| label[j])
+            .find(|&k| k != usize::MAX && k < comps.len())
+        {
+            comps[k].push(i);
+        }
+    }
+    comps
+}
+
+/// Split `cells` by colour: the cells of their dominant (median) colour and the others,
+/// each as connected pieces of at least `least` cells; the others are split again, down to
+/// `depth` levels. Comparing every cell with one reference colour, not with its neighbour,
+/// keeps a blend of colours along an edge from chaining two objects into one.
+fn colour_split(
+    g: &Grid,
+    cells: &[usize],
+    tol: f64,
+    least: usize,
+    depth: usize,
+) -> Vec<Vec<usize>> {
+    let main = dominant_colour(g, cells);
+    let (same, other): (Vec<usize>, Vec<usize>) = cells
+        .iter()
+        .partition(|&&i| same_hue(&main, &g.rgb[i], tol));
+    if other.len() < least {
+        return Vec::new();
+    }
+    let mut out: Vec<Vec<usize>> = components(g, &same)
+        .into_iter()
+        .filter(|c| c.len() >= least)
+        .collect();
+    for c in opened_components(g, &other)
+        .into_iter()
+        .filter(|c| c.len() >= least)
+    {
+        if depth > 1 {
+            out.extend(colour_split(g, &c, tol, least, depth - 1));
+        }
+        out.push(c);
+    }
+    out
+}
+
 fn to_candidate(g: &Grid, cells: &[usize], kind: CandidateKind, dims: (u32, u32)) -> Candidate {
     let (mut b, mut lo, mut hi) = (
         [usize::MAX, usize::MAX, 0, 0],
@@ -322,7 +495,8 @@ fn to_candidate(g: &Grid, cells: &[usize], kind: CandidateKind, dims: (u32, u32)
     }
 }
 
-fn box_iou(a: &[f32; 4], b: &[f32; 4]) -> f64 {
+/// Intersection over union of two boxes [x1, y1, x2, y2].
+pub fn box_iou(a: &[f32; 4], b: &[f32; 4]) -> f64 {
     let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
     let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
     let inter = f64::from(iw * ih);
@@ -355,27 +529,21 @@ pub fn frame_candidates(
     let step =
         |z: f64| p.step_fixed + p.step_per_m * z + p.step_footprints * f64::from(g.s) * z / fx;
     let near = |a: usize, b: usize| (g.z[a] - g.z[b]).abs() < step(g.z[a].min(g.z[b]));
-    let colour = |a: usize| g.rgb[a].map(f64::from);
-    let alike = |a: usize, b: usize| same_hue(&colour(a), &g.rgb[b], p.colour_tol);
 
     let grouped = |a: usize, b: usize| {
         let z = g.z[a].min(g.z[b]);
         (g.z[a] - g.z[b]).abs() < p.group_step + p.group_per_m * z
     };
-    let (mut objects, mut parts, mut walls) = (Sets::new(n), Sets::new(n), Sets::new(n));
-    let mut groups = Sets::new(n);
+    let (mut objects, mut groups) = (Sets::new(n), Sets::new(n));
     for (a, b) in pairs(g.w, g.h) {
-        match (g.kind[a], g.kind[b]) {
-            (Cell::Free, Cell::Free) if near(a, b) => {
-                objects.join(a, b);
-                groups.join(a, b);
-                if alike(a, b) {
-                    parts.join(a, b);
-                }
-            }
-            (Cell::Free, Cell::Free) if grouped(a, b) => groups.join(a, b),
-            (Cell::Wall(x), Cell::Wall(y)) if x == y && alike(a, b) => walls.join(a, b),
-            _ => {}
+        if (g.kind[a], g.kind[b]) != (Cell::Free, Cell::Free) {
+            continue;
+        }
+        if near(a, b) {
+            objects.join(a, b);
+            groups.join(a, b);
+        } else if grouped(a, b) {
+            groups.join(a, b);
         }
     }
     let dims = color.dimensions();
@@ -397,13 +565,14 @@ pub fn frame_candidates(
             object_of[i] = k;
         }
     }
-    for r in regions(&mut parts, free, n) {
-        let whole = object_regions[object_of[r[0]]].len();
-        let share = r.len() as f64 / whole as f64;
-        if share >= p.min_part && share < 0.9 {
-            let c = to_candidate(&g, &r, CandidateKind::Part, dims);
-            if fits(&c) {
-                out.push(c);
+    for whole in object_regions.iter().filter(|r| r.len() >= 2 * p.min_cells) {
+        let least = p.min_cells.max((p.min_part * whole.len() as f64) as usize);
+        for r in colour_split(&g, whole, p.colour_tol, least, 2) {
+            if r.len() < whole.len() * 9 / 10 {
+                let c = to_candidate(&g, &r, CandidateKind::Part, dims);
+                if fits(&c) {
+                    out.push(c);
+                }
             }
         }
     }
@@ -419,11 +588,20 @@ pub fn frame_candidates(
         }
     }
     for side in 0..4u8 {
-        let on = |i: usize| g.kind[i] == Cell::Wall(side);
-        let total = (0..n).filter(|&i| on(i)).count();
-        // The largest colour region of a wall is the wall itself.
-        for r in regions(&mut walls, on, n).into_iter().skip(1) {
-            if (r.len() as f64) < 0.6 * total as f64 {
+        let on: Vec<usize> = (0..n).filter(|&i| g.kind[i] == Cell::Wall(side)).collect();
+        if on.len() < 2 * p.min_cells {
+            continue;
+        }
+        // The wall's own colour is the one most of its cells have; what differs from it
+        // and hangs together is on the wall.
+        let wall = dominant_colour(&g, &on);
+        let off: Vec<usize> = on
+            .iter()
+            .copied()
+            .filter(|&i| !same_hue(&wall, &g.rgb[i], p.colour_tol))
+            .collect();
+        for r in opened_components(&g, &off) {
+            if r.len() >= p.min_cells && r.len() * 10 < on.len() * 6 {
                 let c = to_candidate(&g, &r, CandidateKind::OnWall, dims);
                 if fits(&c) {
                     out.push(c);

@@ -19,6 +19,7 @@ use crate::geometry::mask::Mask;
 
 pub mod box_seg;
 pub mod candidates;
+pub mod candidates_cli;
 pub mod centernet;
 pub mod cli;
 pub mod common;

@@ -405,12 +405,15 @@ fn retry_after(h: &reqwest::header::HeaderMap) -> Option<Duration> {
             .and_then(|v| v.to_str().ok())
             .and_then(|s| s.trim().parse::<f64>().ok())
     };
+    // A server's number is clamped to a day before it becomes a duration (1e20 seconds
+    // would overflow it); the caller caps the wait further at its own maximum.
+    const DAY: f64 = 86_400.0;
     if let Some(ms) = read("retry-after-ms").filter(|v| v.is_finite() && *v >= 0.0) {
-        return Some(Duration::from_millis(ms as u64));
+        return Some(Duration::from_secs_f64((ms / 1000.0).min(DAY)));
     }
     read("retry-after")
         .filter(|v| v.is_finite() && *v >= 0.0)
-        .map(Duration::from_secs_f64)
+        .map(|s| Duration::from_secs_f64(s.min(DAY)))
 }
 
 /// The `error.message` of an OpenAI-style error body, else the start of the body.

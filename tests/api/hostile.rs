@@ -123,3 +123,104 @@ async fn image_dimension_bombs_are_refused_and_the_server_lives() {
     assert_eq!(list["scenes"].as_array().map(Vec::len), Some(0));
     app.stop().await;
 }
+
+/// A panic inside a job's pipeline ends that job `failed` (kind `internal`) and the worker
+/// goes on: with one worker, the jobs after two panics still run.
+#[tokio::test]
+async fn a_panicking_job_fails_alone_and_the_worker_goes_on() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut cfg = test_config(dir.path().to_path_buf());
+    cfg.workers = 1;
+    cfg.pipeline = "test:delay_ms=10".into();
+    let app = TestApp::spawn_with(cfg).await;
+    let r = app
+        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
+        .await;
+    assert_eq!(r.status().as_u16(), 201);
+    let scene: serde_json::Value = r.json().await.expect("json");
+    let scene_id = scene["id"].as_str().expect("id").to_string();
+    let mut ids = Vec::new();
+    for q in ["the chair [panic]", "the table [panic]", "the lamp"] {
+        let r = app.create_job(&scene_id, q).await;
+        assert_eq!(r.status().as_u16(), 202);
+        let j: serde_json::Value = r.json().await.expect("json");
+        ids.push(j["id"].as_str().expect("id").to_string());
+    }
+    let mut states = Vec::new();
+    for id in &ids {
+        let j = app.wait_job(id, std::time::Duration::from_secs(20)).await;
+        states.push((
+            j["status"].as_str().unwrap_or("").to_string(),
+            j["error"]["code"].as_str().unwrap_or("").to_string(),
+        ));
+        let detail = j["error"]["detail"].as_str().unwrap_or("");
+        assert!(
+            !detail.contains("panicked at"),
+            "no panic text leaks: {detail}"
+        );
+    }
+    assert_eq!(
+        states,
+        vec![
+            ("failed".into(), "internal".into()),
+            ("failed".into(), "internal".into()),
+            ("succeeded".into(), String::new()),
+        ]
+    );
+    let (_, list) = app.get_json("/v1/jobs?status=running").await;
+    assert_eq!(list["jobs"].as_array().map(Vec::len), Some(0), "{list}");
+    app.stop().await;
+}
+
+/// A scene whose indexing fails takes the jobs queued on it down with it, with its reason.
+/// The jobs are put in the queue of an indexing scene while no server runs; the server
+/// that starts then cannot load its detector, so re-indexing fails.
+#[tokio::test]
+async fn jobs_queued_on_a_scene_that_fails_indexing_fail_with_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = test_config(dir.path().to_path_buf());
+    let app = TestApp::spawn_with(cfg.clone()).await;
+    let r = app
+        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
+        .await;
+    let scene: serde_json::Value = r.json().await.expect("json");
+    let scene_id = scene["id"].as_str().expect("id").to_string();
+    app.stop().await;
+
+    let db = dir.path().join("grounder.db");
+    let url = format!("sqlite://{}", db.display());
+    let pool = sqlx::SqlitePool::connect(&url).await.expect("open the db");
+    sqlx::query("UPDATE scenes SET status = 'indexing' WHERE id = ?")
+        .bind(&scene_id)
+        .execute(&pool)
+        .await
+        .expect("update");
+    for i in 0..5 {
+        sqlx::query("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?, ?, ?, 'queued', '2026-01-01T00:00:00Z')")
+            .bind(format!("queued-{i}"))
+            .bind(&scene_id)
+            .bind(format!("query {i}"))
+            .execute(&pool)
+            .await
+            .expect("insert");
+    }
+    pool.close().await;
+
+    let mut cfg2 = cfg;
+    cfg2.detector = "centernet:/nonexistent/model.onnx".into();
+    let app = TestApp::spawn_with(cfg2).await;
+    for i in 0..5 {
+        let j = app
+            .wait_job(&format!("queued-{i}"), std::time::Duration::from_secs(10))
+            .await;
+        assert_eq!(j["status"], "failed", "{j}");
+        assert_eq!(j["error"]["code"], "scene_failed", "{j}");
+        assert!(
+            j["error"]["detail"]
+                .as_str()
+                .is_some_and(|d| d.contains("could not be loaded")),
+            "the scene's reason: {j}"
+        );
+    }
+    app.stop().await;
+}

@@ -167,6 +167,31 @@ async fn rate_limit_then_success_honours_retry_after() {
     assert!(gap >= Duration::from_millis(950), "gap {gap:?}");
 }
 
+/// A server asking to wait 1e20 seconds (past what a Duration holds) must not panic the
+/// caller: the wait is clamped to the configured maximum.
+#[tokio::test]
+async fn absurd_retry_after_is_clamped_not_a_panic() {
+    let (script, base) = fake(vec![
+        Step::Status(429, Some("1e20")),
+        Step::Status(503, Some("inf")),
+        Step::Ok("fine"),
+    ])
+    .await;
+    let cfg = VlmConfig {
+        backoff_max_ms: 200,
+        ..config(&base)
+    };
+    let client = VlmClient::new(cfg).unwrap();
+    let t = Instant::now();
+    let reply = client
+        .chat(&msgs(), &CallBudget::unlimited())
+        .await
+        .unwrap();
+    assert_eq!(reply.text, "fine");
+    assert_eq!(script.seen.lock().unwrap().len(), 3);
+    assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
+}
+
 #[tokio::test]
 async fn timeout_then_success() {
     let (_s, base) = fake(vec![Step::Sleep(1_500), Step::Ok("second")]).await;
