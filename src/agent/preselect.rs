@@ -153,7 +153,7 @@ pub fn split_by_depth(
     else {
         return (hits.to_vec(), Vec::new(), None);
     };
-    let (keep, drop): (Vec<(usize, f64)>, Vec<(usize, f64)>) = hits
+    let (keep, drop): (Vec<_>, Vec<_>) = hits
         .iter()
         .copied()
         .zip(best.iter().copied())

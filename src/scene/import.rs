@@ -197,7 +197,7 @@ pub fn import(
         None => None,
     };
 
-    let results: Vec<Result<(ImportedFrame, (u32, u32)), SceneError>> = files
+    let results: Vec<Result<_, SceneError>> = files
         .frames
         .par_iter()
         .enumerate()

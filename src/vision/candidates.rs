@@ -340,8 +340,8 @@ fn dominant_colour(g: &Grid, cells: &[usize]) -> [f64; 3] {
     let best = (0..65).max_by_key(|&b| counts[b]).unwrap_or(0);
     let (mut sum, mut n) = ([0.0; 3], 0.0);
     for &i in cells.iter().filter(|&&i| bin(&g.rgb[i]) == best) {
-        for k in 0..3 {
-            sum[k] += f64::from(g.rgb[i][k]);
+        for (s, &v) in sum.iter_mut().zip(&g.rgb[i]) {
+            *s += f64::from(v);
         }
         n += 1.0;
     }

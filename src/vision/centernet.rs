@@ -79,11 +79,11 @@ impl CenterNet {
         let mut out = Vec::new();
         for r in rows.chunks_exact(6) {
             let score = r[4];
-            if !(score >= self.min_score) {
+            if score.is_nan() || score < self.min_score {
                 continue;
             }
             let cls = r[5];
-            if !(cls >= 0.0) || cls as usize >= self.classes.len() {
+            if cls.is_nan() || cls < 0.0 || cls as usize >= self.classes.len() {
                 continue;
             }
             let b = [r[0] * sx, r[1] * sy, r[2] * sx, r[3] * sy];

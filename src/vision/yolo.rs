@@ -229,7 +229,7 @@ impl Yolo {
             let (best, score) = (0..nc)
                 .map(|c| (c, at(4 + c)))
                 .fold((0, f32::NEG_INFINITY), |m, x| if x.1 > m.1 { x } else { m });
-            if !(score >= self.min_score) {
+            if score.is_nan() || score < self.min_score {
                 continue;
             }
             let (cx, cy, bw, bh) = (at(0), at(1), at(2), at(3));

@@ -224,3 +224,103 @@ async fn jobs_queued_on_a_scene_that_fails_indexing_fail_with_it() {
     }
     app.stop().await;
 }
+
+/// A tar header of `kind` declaring `size` bytes, followed by `body`.
+fn tar_header(kind: u8, name: &str, size: u64, body: &[u8]) -> Vec<u8> {
+    let mut h = [0u8; 512];
+    h[..name.len()].copy_from_slice(name.as_bytes());
+    h[100..107].copy_from_slice(b"0000644");
+    h[124..135].copy_from_slice(format!("{size:011o}").as_bytes());
+    h[136..147].copy_from_slice(b"00000000000");
+    h[156] = kind;
+    h[257..263].copy_from_slice(b"ustar ");
+    h[263..265].copy_from_slice(b" \0");
+    h[148..156].copy_from_slice(b"        ");
+    let sum: u32 = h.iter().map(|&b| u32::from(b)).sum();
+    h[148..155].copy_from_slice(format!("{sum:06o}\0").as_bytes());
+    let mut out = h.to_vec();
+    out.extend_from_slice(body);
+    out
+}
+
+/// Archive metadata that a reader would hold whole in memory (GNU long names, PAX headers
+/// claiming gigabytes) and a zip whose directory claims more entries than allowed are
+/// refused from their headers.
+#[tokio::test]
+async fn archive_metadata_bombs_are_refused_from_their_headers() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut cfg = test_config(dir.path().to_path_buf());
+    cfg.max_archive_files = 100;
+    let app = TestApp::spawn_with(cfg).await;
+    let before = vm_hwm_kb();
+    let filler = vec![b'a'; 64 * 1024];
+    let gnu = crate::helpers::gzip(&tar_header(b'L', "././@LongLink", 2 << 30, &filler));
+    let pax = crate::helpers::gzip(&tar_header(b'x', "pax", 2 << 30, &filler));
+    let plain_pax = tar_header(b'x', "pax", (2 << 30) - 1, &filler);
+    let mut zip = b"PK\x03\x04".to_vec();
+    zip.extend_from_slice(&[0u8; 26]);
+    let mut eocd = vec![0x50, 0x4b, 0x05, 0x06, 0, 0, 0, 0];
+    eocd.extend_from_slice(&60_000u16.to_le_bytes());
+    eocd.extend_from_slice(&60_000u16.to_le_bytes());
+    eocd.extend_from_slice(&3_000_000u32.to_le_bytes());
+    eocd.extend_from_slice(&0u32.to_le_bytes());
+    eocd.extend_from_slice(&0u16.to_le_bytes());
+    zip.extend_from_slice(&eocd);
+    let cases = [
+        (
+            "GNU long name of 2 GiB in tar.gz",
+            gnu,
+            "application/gzip",
+            "GNU long name",
+        ),
+        (
+            "PAX header of 2 GiB in tar.gz",
+            pax,
+            "application/gzip",
+            "PAX header",
+        ),
+        (
+            "PAX header of 2 GiB in tar",
+            plain_pax,
+            "application/x-tar",
+            "PAX header",
+        ),
+        (
+            "zip claiming 60000 entries",
+            zip,
+            "application/zip",
+            "60000 entries",
+        ),
+    ];
+    for (what, body, ct, needle) in cases {
+        let r = app.upload(body, ct).await;
+        let status = r.status().as_u16();
+        let p: serde_json::Value = r.json().await.unwrap_or_default();
+        assert_eq!(
+            (status, p["code"].as_str().unwrap_or("")),
+            (413, "archive_too_large"),
+            "{what}: {p}"
+        );
+        let detail = p["detail"].as_str().unwrap_or("");
+        assert!(detail.contains(needle), "{what}: {detail}");
+        let health = app
+            .client
+            .get(app.url("/healthz"))
+            .send()
+            .await
+            .expect("the server still answers");
+        assert_eq!(health.status().as_u16(), 200, "{what}");
+    }
+    if let (Some(a), Some(b)) = (before, vm_hwm_kb()) {
+        assert!(
+            b.saturating_sub(a) < 200_000,
+            "peak memory grew by {} kB",
+            b - a
+        );
+    }
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path().join("tmp"))
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+    app.stop().await;
+}

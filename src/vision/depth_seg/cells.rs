@@ -96,8 +96,8 @@ impl DepthSegmenter {
         let n = region.iter().filter(|&&b| b).count().max(1) as f64;
         let mut mean = [0.0f64; 3];
         for i in (0..region.len()).filter(|&i| region[i]) {
-            for c in 0..3 {
-                mean[c] += g.rgb[i][c] as f64 / n;
+            for (m, &v) in mean.iter_mut().zip(&g.rgb[i]) {
+                *m += f64::from(v) / n;
             }
         }
         for _ in 0..3 {
