@@ -13,6 +13,7 @@
 mod layout;
 mod models;
 mod path;
+mod place;
 mod prim;
 mod render;
 
