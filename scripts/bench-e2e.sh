@@ -158,7 +158,7 @@ mkdir -p "$(dirname "$REPORT")"
     echo "## Per-stage success rates"
     echo
     echo "| stage | $(for c in "${CONFIGS[@]}"; do read -r e g <<<"$c"; printf 'err %s, %s | ' "$e" "$g"; done)"
-    echo "|---|---|---|---|"
+    echo "|---|$(for _ in "${CONFIGS[@]}"; do printf -- '---|'; done)"
     for st in preselection_contains_target image_choice_correct detection_present instance_choice_correct mask_iou_ge_05 box_iou_ge_05; do
         row="| $st |"
         for c in "${CONFIGS[@]}"; do
