@@ -1,28 +1,58 @@
 #!/usr/bin/env bash
 # End-to-end benchmark: realistic-noise synthetic scenes, `grounder serve` with the oracle
-# detector, `grounder oracle-vlm` as the VLM, `grounder eval` over every query.
+# detector (or DETECTOR), `grounder oracle-vlm` as the VLM, `grounder eval` over every query.
 # Configurations: VLM error rate 0 / depth segmenter, error 0.2 / depth, error 0 / box
-# segmenter (ablation). Writes docs/benchmark-e2e.md; the data stays under $BENCH_DIR.
+# segmenter (ablation). Writes one report per scene family and split; the data stays under
+# $BENCH_DIR.
 #
-# Environment (defaults in brackets): BENCH_DIR [target/bench-e2e], SCENES [5],
-# FRAMES [60], COLOR_SIZE [1296x968], DEPTH_SIZE [640x480], SEED [100], NOISE [realistic], JOBS [2],
-# WORKERS [2], GROUNDER_BIN [built with cargo build --release], REPORT [docs/benchmark-e2e.md],
+# Scene families and the split (docs/benchmark-e2e.md): FAMILY picks the generator
+# (`grounder synth --family rooms|props`), SPLIT picks fixed seeds. Tuning looks at dev
+# seeds only; published figures come from test seeds, which no tuning decision looked at.
+#   rooms: dev 100..  test 300..     props: dev 500..  test 700..
+# (SCENES scenes from the first seed of the split.)
+#
+# Environment (defaults in brackets): FAMILY [rooms], SPLIT [dev], SCENES [5],
+# BENCH_DIR [target/bench-e2e/$FAMILY-$SPLIT], FRAMES [60], COLOR_SIZE [1296x968],
+# DEPTH_SIZE [640x480], NOISE [realistic], JOBS [2], WORKERS [2],
+# DETECTOR [oracle; e.g. centernet for the default detector],
+# GROUNDER_BIN [built with cargo build --release],
+# REPORT [docs/benchmark-e2e-$FAMILY-$SPLIT.md, or ...-$DETECTOR.md for another detector],
 # REPORT_ONLY [unset; 1 = only rewrite the report from the runs already in $BENCH_DIR],
 # ONLY [unset; e.g. "0 depth:edges=on" = run and report that one configuration alone;
-# set REPORT elsewhere then].
+# set REPORT elsewhere then], SEED [unset; a first seed outside the split, for experiments:
+# the report then says "custom seeds", not dev or test].
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-BENCH_DIR=${BENCH_DIR:-$ROOT/target/bench-e2e}
+FAMILY=${FAMILY:-rooms}
+SPLIT=${SPLIT:-dev}
+DETECTOR=${DETECTOR:-oracle}
+case "$FAMILY:$SPLIT" in
+    rooms:dev) SPLIT_SEED=100 ;;
+    rooms:test) SPLIT_SEED=300 ;;
+    props:dev) SPLIT_SEED=500 ;;
+    props:test) SPLIT_SEED=700 ;;
+    *) echo "error: FAMILY must be rooms or props and SPLIT dev or test (got $FAMILY, $SPLIT)" >&2; exit 1 ;;
+esac
 SCENES=${SCENES:-5}
+if [[ -n "${SEED:-}" ]]; then
+    SPLIT_NAME="custom seeds"
+    TAG=$FAMILY-seed$SEED
+else
+    SEED=$SPLIT_SEED
+    SPLIT_NAME=$SPLIT
+    TAG=$FAMILY-$SPLIT
+fi
+(( SCENES >= 1 && SCENES <= 200 )) || { echo "error: SCENES must be 1..200 (the splits are 200 seeds apart)" >&2; exit 1; }
+if [[ "$DETECTOR" != oracle ]]; then TAG=$TAG-$DETECTOR; fi
+BENCH_DIR=${BENCH_DIR:-$ROOT/target/bench-e2e/$TAG}
 FRAMES=${FRAMES:-60}
 COLOR_SIZE=${COLOR_SIZE:-1296x968}
 DEPTH_SIZE=${DEPTH_SIZE:-640x480}
-SEED=${SEED:-100}
 NOISE=${NOISE:-realistic}
 JOBS=${JOBS:-2}
 WORKERS=${WORKERS:-2}
-REPORT=${REPORT:-$ROOT/docs/benchmark-e2e.md}
+REPORT=${REPORT:-$ROOT/docs/benchmark-e2e-$TAG.md}
 
 command -v jq >/dev/null || { echo "error: jq is required" >&2; exit 1; }
 
@@ -63,11 +93,14 @@ start_server() {
 
 DATA=$BENCH_DIR/data
 mkdir -p "$BENCH_DIR"
-if [[ ! -f "$DATA/ds/queries.jsonl" ]]; then
+SYNTH_ARGS="--family $FAMILY --seed $SEED --scenes $SCENES --frames $FRAMES --color-size $COLOR_SIZE --depth-size $DEPTH_SIZE --noise $NOISE"
+# Regenerate when the data is missing or was made with other settings.
+if [[ ! -f "$DATA/ds/queries.jsonl" || "$(cat "$DATA/synth_args" 2>/dev/null)" != "$SYNTH_ARGS" ]]; then
     rm -rf "$DATA"
     t0=$(date +%s)
-    "$BIN" synth --out "$DATA/scenes" --seed "$SEED" --scenes "$SCENES" --frames "$FRAMES" \
-        --color-size "$COLOR_SIZE" --depth-size "$DEPTH_SIZE" --noise "$NOISE" --dataset "$DATA/ds"
+    # shellcheck disable=SC2086 # word splitting of the argument list is intended
+    "$BIN" synth --out "$DATA/scenes" $SYNTH_ARGS --dataset "$DATA/ds"
+    echo "$SYNTH_ARGS" >"$DATA/synth_args"
     echo "generated $SCENES scenes in $(( $(date +%s) - t0 )) s"
 fi
 NQ=$(wc -l <"$DATA/ds/queries.jsonl")
@@ -83,7 +116,7 @@ for c in "${CONFIGS[@]}"; do
     start_server oracle "$run" oracle-vlm --addr 127.0.0.1:0 --dataset "$DATA/ds" --scenes "$DATA/scenes" \
         --seed "$SEED" --error-rate "$err"
     oracle=$URL
-    GROUNDER_DETECTOR=oracle GROUNDER_SEGMENTER=$seg GROUNDER_VLM_BASE_URL=$oracle/v1 \
+    GROUNDER_DETECTOR=$DETECTOR GROUNDER_SEGMENTER=$seg GROUNDER_VLM_BASE_URL=$oracle/v1 \
         GROUNDER_VLM_MODEL=oracle GROUNDER_VLM_API_KEY=x GROUNDER_WORKERS=$WORKERS \
         start_server serve "$run" serve --addr 127.0.0.1:0 --data-dir "$run/service"
     t0=$(date +%s)
@@ -99,13 +132,13 @@ rate() { jq -r "$1 | if . == null then \"–\" else ((.rate * 1000 | round / 10 
 
 mkdir -p "$(dirname "$REPORT")"
 {
-    echo "# End-to-end benchmark (oracle VLM, synthetic scenes)"
+    echo "# End-to-end benchmark: $FAMILY family, $SPLIT_NAME seeds (oracle VLM, $DETECTOR detector)"
     echo
     echo "Generated by \`scripts/bench-e2e.sh\` on $(date -u +%Y-%m-%d) at commit $(cd "$ROOT" && git rev-parse --short HEAD)."
     echo
-    echo "- Data: $SCENES synthetic scenes (\`grounder synth --seed $SEED --scenes $SCENES --frames $FRAMES"
+    echo "- Data: $SCENES synthetic scenes of the $FAMILY family, $SPLIT_NAME seeds $SEED..$(( SEED + SCENES - 1 )) (\`grounder synth --family $FAMILY --seed $SEED --scenes $SCENES --frames $FRAMES"
     echo "  --color-size $COLOR_SIZE --depth-size $DEPTH_SIZE --noise $NOISE\`), $NQ queries."
-    echo "- Service: \`grounder serve\` with GROUNDER_DETECTOR=oracle (ground-truth 2D boxes),"
+    echo "- Service: \`grounder serve\` with GROUNDER_DETECTOR=$DETECTOR (oracle = ground-truth 2D boxes),"
     echo "  $WORKERS workers; VLM: \`grounder oracle-vlm\` (answers from ground truth, wrong with"
     echo "  probability = error rate); \`grounder eval --jobs $JOBS\` over HTTP."
     echo "- The oracle removes the VLM's and the detector's judgement; what is measured is the"
@@ -125,7 +158,7 @@ mkdir -p "$(dirname "$REPORT")"
     echo "## Per-stage success rates"
     echo
     echo "| stage | $(for c in "${CONFIGS[@]}"; do read -r e g <<<"$c"; printf 'err %s, %s | ' "$e" "$g"; done)"
-    echo "|---|---|---|---|"
+    echo "|---|$(for _ in "${CONFIGS[@]}"; do printf -- '---|'; done)"
     for st in preselection_contains_target image_choice_correct detection_present instance_choice_correct mask_iou_ge_05 box_iou_ge_05; do
         row="| $st |"
         for c in "${CONFIGS[@]}"; do

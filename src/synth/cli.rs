@@ -1,6 +1,6 @@
 //! `grounder synth`: generate synthetic posed RGB-D scenes with exact ground truth.
 
-use super::{generate_with, preview, write_dataset, Layout, Noise, SynthParams};
+use super::{generate_family, preview, write_dataset, Family, Layout, Noise, SynthParams};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -10,7 +10,11 @@ pub struct SynthArgs {
     /// Output directory; each scene goes to `<out>/<scene_id>/`.
     #[arg(long)]
     pub out: PathBuf,
-    /// Seed of the (first) scene; the scene id is `scene_synth_<seed>`.
+    /// Scene family: `rooms` (boxes) or `props` (curved and thin parts, close-ups).
+    #[arg(long, value_enum, default_value_t = Family::Rooms)]
+    pub family: Family,
+    /// Seed of the (first) scene; the scene id is `scene_synth_<seed>` (rooms) or
+    /// `scene_props_<seed>` (props).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Number of scenes (seeds seed, seed+1, ...).
@@ -73,7 +77,7 @@ pub fn run(args: SynthArgs) -> Result<()> {
             ..SynthParams::new(args.seed + k)
         };
         let start = std::time::Instant::now();
-        let scene = generate_with(&params, &args.out, args.tar)?;
+        let scene = generate_family(args.family, &params, &args.out, args.tar)?;
         eprintln!(
             "{}: {} objects, {} queries, {} frames in {:.1} s -> {}",
             scene.scene_id,

@@ -7,6 +7,9 @@
 //! `axis_align_matrix.txt` (world -> aligned), so ground-truth boxes are axis-aligned in the
 //! output frame of FORMATS.md §1 exactly as for ScanNet.
 //!
+//! A second family, [`props`], builds rooms from curved and thin parts instead
+//! ([`Family`], [`generate_family`]).
+//!
 //! Library first: [`generate`] writes one scene and returns its ground truth;
 //! [`write_dataset`] writes FORMATS §2 annotations for a set of scenes.
 
@@ -16,6 +19,7 @@ mod noise;
 mod output;
 mod path;
 pub mod preview;
+pub mod props;
 mod queries;
 mod render;
 mod room;
@@ -37,6 +41,30 @@ pub enum Noise {
     /// Distance-dependent depth noise, flying pixels, holes, a depth cut-off, pose jitter,
     /// a few frames with inf poses and colour sensor noise.
     Realistic,
+}
+
+/// Scene family: which generator builds the room.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+pub enum Family {
+    /// Furniture of axis-aligned boxes, camera loop at head height (`scene_synth_<seed>`).
+    #[default]
+    Rooms,
+    /// Cylinders, cones, ellipsoids and thin turned boxes; clutter; chairs under tables;
+    /// close-ups as well as room-wide views (`scene_props_<seed>`).
+    Props,
+}
+
+/// Build, render and write one scene of `family` (and its tar when `tar`).
+pub fn generate_family(
+    family: Family,
+    params: &SynthParams,
+    out_dir: &Path,
+    tar: bool,
+) -> Result<SynthScene> {
+    match family {
+        Family::Rooms => generate_with(params, out_dir, tar),
+        Family::Props => props::generate_with(params, out_dir, tar),
+    }
 }
 
 /// On-disk layout of the scene directory (FORMATS §1).
@@ -94,7 +122,7 @@ impl SynthParams {
         }
     }
 
-    fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let (cw, ch) = self.color_size;
         let (dw, dh) = self.depth_size;
         anyhow::ensure!(self.frames >= 1, "synth: at least one frame is needed");
@@ -223,7 +251,12 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
 
     let writer = output::SceneWriter::create(&dir, params.layout)
         .with_context(|| format!("synth: cannot create scene directory {}", dir.display()))?;
-    writer.write_static(&world, &color_k, &depth_k)?;
+    let labels: Vec<(u32, &str)> = world
+        .objects
+        .iter()
+        .map(|o| (o.id, o.label.as_str()))
+        .collect();
+    writer.write_static(&world.align, &labels, &color_k, &depth_k)?;
     let scene_renderer = render::Renderer::new(&world);
     frames
         .par_iter()

@@ -1,6 +1,5 @@
 //! Writing a scene directory in layout §1a or §1b of FORMATS.md, and its tar archive.
 
-use super::room::World;
 use super::Layout;
 use crate::geometry::Intrinsics;
 use anyhow::{Context, Result};
@@ -60,10 +59,11 @@ impl SceneWriter {
         })
     }
 
-    /// Intrinsics, axis alignment and instance labels.
+    /// Intrinsics, axis alignment (world -> aligned) and instance labels (id, label).
     pub fn write_static(
         &self,
-        world: &World,
+        align: &Matrix4<f64>,
+        labels: &[(u32, &str)],
         color_k: &Intrinsics,
         depth_k: &Intrinsics,
     ) -> Result<()> {
@@ -93,13 +93,9 @@ impl SceneWriter {
         }
         write(
             &self.dir.join("axis_align_matrix.txt"),
-            matrix_text(&world.align).as_bytes(),
+            matrix_text(align).as_bytes(),
         )?;
-        let labels: BTreeMap<u32, &str> = world
-            .objects
-            .iter()
-            .map(|o| (o.id, o.label.as_str()))
-            .collect();
+        let labels: BTreeMap<u32, &str> = labels.iter().copied().collect();
         let labels: serde_json::Map<String, serde_json::Value> = labels
             .into_iter()
             .map(|(k, v)| (k.to_string(), v.into()))

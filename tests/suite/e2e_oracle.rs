@@ -108,15 +108,17 @@ impl E2e {
     }
 }
 
-/// Two small noise-free scenes (seeds 1 and 2) grounded over HTTP with the oracle VLM and
-/// the given detector spec and service environment.
-fn run_e2e(detector: &str, extra_env: &[(&str, String)]) -> E2e {
+/// Two small noise-free scenes of `family` (seeds 1 and 2) grounded over HTTP with the
+/// oracle VLM and the given detector spec and service environment.
+fn run_e2e(family: &str, detector: &str, extra_env: &[(&str, String)]) -> E2e {
     let dir = tempfile::tempdir().expect("tempdir");
     let p = |s: &str| dir.path().join(s).to_string_lossy().into_owned();
     let (scenes, ds, data, report) = (p("scenes"), p("ds"), p("data"), p("report"));
 
     run(&[
         "synth",
+        "--family",
+        family,
         "--out",
         &scenes,
         "--seed",
@@ -224,7 +226,7 @@ fn run_e2e(detector: &str, extra_env: &[(&str, String)]) -> E2e {
 
 #[test]
 fn oracle_pipeline_grounds_synthetic_scenes_over_http() {
-    let r = run_e2e("oracle", &[]);
+    let r = run_e2e("rooms", "oracle", &[]);
     let (acc25, acc05, n_queries) = (r.acc25, r.acc05, r.n_queries);
     // Issue 8's bar for these scenes is Acc@0.25 >= 0.9. Measured: 0.985 / 0.897
     // (Acc@0.25 / Acc@0.5, measured 2026-11-24; docs/benchmark-e2e.md has the
@@ -250,7 +252,7 @@ fn oracle_pipeline_grounds_synthetic_scenes_over_http() {
 /// from the class-agnostic candidates as set-of-marks. No job may fail for its class.
 #[test]
 fn default_detector_grounds_classes_it_does_not_know() {
-    let r = run_e2e("centernet", &[]);
+    let r = run_e2e("rooms", "centernet", &[]);
     let failures = r.failures();
     let by_class: Vec<&&str> = failures
         .iter()
@@ -283,6 +285,7 @@ fn vlm_boxes_ground_every_query() {
     let file = cfg.path().join("grounder.toml");
     std::fs::write(&file, "[agent]\nbox_format = \"yxyx1000\"\n").expect("config file");
     let r = run_e2e(
+        "rooms",
         "vlm",
         &[("GROUNDER_CONFIG", file.to_string_lossy().into_owned())],
     );
@@ -299,5 +302,39 @@ fn vlm_boxes_ground_every_query() {
         "Acc@0.25 {:.3} below {E2E_VLM_BOX_FLOOR_025}; failures:\n{}",
         r.acc25,
         failures.join("\n")
+    );
+}
+
+/// The props family runs through the same oracle VLM, service and evaluator unchanged:
+/// every query gets a result, the oracle's image choice is right (so it reads the new
+/// family's masks and labels), and the accuracy is reported. The bar is only a floor under
+/// what the pipeline does on this world today (not a target, see docs/benchmark-e2e.md).
+#[test]
+fn oracle_pipeline_runs_on_the_props_family_over_http() {
+    let r = run_e2e("props", "oracle", &[]);
+    println!(
+        "e2e props: Acc@0.25 {:.3}, Acc@0.5 {:.3} over {} queries",
+        r.acc25, r.acc05, r.n_queries
+    );
+    let image = &r.summary["stages"]["image_choice_correct"];
+    let rate = image["rate"].as_f64().unwrap_or(0.0);
+    assert!(
+        rate >= 0.9,
+        "the oracle chose the right image for only {rate:.2} of the props queries: {image}"
+    );
+    // Measured 2026-11-25 at branch `world` (pipeline of main b712e87): Acc@0.25 0.575,
+    // Acc@0.5 0.299 over 174 queries; the gap to the rooms family is issue 18's subject.
+    const FLOOR_025: f64 = 0.5;
+    assert!(
+        r.acc25 >= FLOOR_025,
+        "props: Acc@0.25 {:.3} over {} queries is below {FLOOR_025}; first failures:\n{}",
+        r.acc25,
+        r.n_queries,
+        r.failures()
+            .iter()
+            .take(10)
+            .copied()
+            .collect::<Vec<_>>()
+            .join("\n")
     );
 }

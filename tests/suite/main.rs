@@ -14,6 +14,7 @@ mod stitch_render;
 mod stitch_retrieval;
 mod synth_backproject;
 mod synth_output;
+mod synth_props;
 mod synth_queries;
 mod vision_centernet;
 mod vision_depth_seg;

@@ -3,7 +3,7 @@
 //! box. Everything is read back from disk with independent parsing.
 
 use grounder::geometry::Aabb;
-use grounder::synth::{generate, Layout, SynthParams};
+use grounder::synth::{generate_family, Family, Layout, SynthParams};
 use image::{ImageBuffer, Luma};
 use nalgebra::{Matrix4, Point3, Vector4};
 use std::collections::BTreeMap;
@@ -25,7 +25,7 @@ fn read_u16(path: &Path) -> ImageBuffer<Luma<u16>, Vec<u16>> {
 
 /// Back-project every interior instance pixel of every frame; returns per-object
 /// (points tested, points outside the box by more than 2 cm, AABB of the points).
-fn check_scene(
+pub(crate) fn check_scene(
     dir: &Path,
     layout: Layout,
     objects: &BTreeMap<u32, Aabb>,
@@ -107,8 +107,15 @@ fn check_scene(
 }
 
 fn run(params: SynthParams) {
+    run_family(Family::Rooms, params, 0.5);
+}
+
+/// Generate a scene of `family` and check that every instance pixel back-projects into its
+/// object's box and that the points span the boxes (mean IoU of the point boxes above
+/// `min_mean_iou` over objects seen by more than 200 pixels).
+pub(crate) fn run_family(family: Family, params: SynthParams, min_mean_iou: f64) {
     let tmp = tempfile::tempdir().unwrap();
-    let scene = generate(&params, tmp.path()).unwrap();
+    let scene = generate_family(family, &params, tmp.path(), false).unwrap();
     let objects: BTreeMap<u32, Aabb> = scene.objects.iter().map(|o| (o.id, o.aabb)).collect();
     let labels: BTreeMap<String, String> = serde_json::from_str(
         &std::fs::read_to_string(scene.dir.join("instance/labels.json")).unwrap(),
@@ -143,7 +150,7 @@ fn run(params: SynthParams) {
         objects.len()
     );
     assert!(
-        mean_iou > 0.5,
+        mean_iou > min_mean_iou,
         "back-projected points span too little of the boxes: mean IoU {mean_iou:.2}"
     );
 }
