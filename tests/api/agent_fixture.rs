@@ -66,12 +66,32 @@ impl Fixture {
         Self::start_with(replies, timeout_ms, detector, |_| {}).await
     }
 
-    /// As `start_with_detector`, with the VLM client settings adjusted by `tweak`.
+    /// As `start_with_detector`, with the VLM client settings adjusted by `tweak`. These
+    /// fixtures test the paper's detector path: class-agnostic candidates are off.
     pub async fn start_with(
         replies: Vec<Reply>,
         timeout_ms: u64,
         detector: &str,
         tweak: impl FnOnce(&mut VlmConfig),
+    ) -> Fixture {
+        Self::start_full(replies, timeout_ms, detector, tweak, false).await
+    }
+
+    /// With the class-agnostic candidates on (the default configuration).
+    pub async fn start_with_candidates(
+        replies: Vec<Reply>,
+        timeout_ms: u64,
+        detector: &str,
+    ) -> Fixture {
+        Self::start_full(replies, timeout_ms, detector, |_| {}, true).await
+    }
+
+    async fn start_full(
+        replies: Vec<Reply>,
+        timeout_ms: u64,
+        detector: &str,
+        tweak: impl FnOnce(&mut VlmConfig),
+        candidates: bool,
     ) -> Fixture {
         let vlm = FakeVlm::start(replies).await;
         let dir = tempfile::tempdir().unwrap();
@@ -81,6 +101,7 @@ impl Fixture {
         cfg.model_dir = Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"));
         cfg.segmenter = "depth".into();
         cfg.workers = 1;
+        cfg.agent.candidates.enabled = candidates;
         let mut vc = vlm_config(&vlm.base, timeout_ms);
         tweak(&mut vc);
         cfg.vlm = Some(vc);

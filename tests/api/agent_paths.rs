@@ -238,6 +238,49 @@ async fn image_without_the_target_gets_object_not_existing() {
     assert_trace_clean(&job);
 }
 
+/// The default configuration: the closed-vocabulary detector cannot see a whiteboard, so
+/// the chosen image's class-agnostic candidates (found from the scan at indexing) are drawn
+/// as numbered marks and the VLM picks one; the job ends with a box from the marks path.
+#[tokio::test]
+async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
+    let f = Fixture::start_with_candidates(vec![], 5_000, "centernet").await;
+    f.vlm.script_push(vec![
+        analysis("whiteboard"),
+        pick_image("00000"),
+        pick_object(0),
+    ]);
+    let job = f.run_job(QUERY).await;
+    assert_eq!(job["status"], "succeeded", "{job:#}");
+    assert_eq!(job["result"]["box_source"], "marks", "{:#}", job["result"]);
+    let cands = steps(&job, "candidates");
+    assert_eq!(cands.len(), 1, "{job:#}");
+    let out = &cands[0]["outputs"];
+    assert_eq!(out["from"], "index", "cached at indexing: {out:#}");
+    let listed = out["candidates"].as_array().cloned().unwrap_or_default();
+    assert!(!listed.is_empty(), "{out:#}");
+    let marks = steps(&job, "mark_selection");
+    assert_eq!(marks.len(), 1, "{job:#}");
+    let url = marks[0]["inputs"]["annotated"].as_str().unwrap_or_default();
+    assert!(url.contains("marks_00000_0.jpg"), "{url}");
+    assert_jpeg(&f, url).await;
+    let chosen = &marks[0]["outputs"]["box"];
+    assert_eq!(chosen, &listed[0]["box"], "the box of mark 0");
+    // The VLM saw the marks prompt with the regions listed.
+    let reqs = f.vlm.requests();
+    assert_eq!(reqs.len(), 3, "analysis, image, mark");
+    let text = reqs[2]["messages"]
+        .as_array()
+        .and_then(|m| m.last())
+        .map(|m| m.to_string())
+        .unwrap_or_default();
+    assert!(
+        text.contains("Task: mark selection") && text.contains("ID 0: box"),
+        "{text}"
+    );
+    assert!(steps(&job, "segmentation").len() == 1, "{job:#}");
+    assert_trace_clean(&job);
+}
+
 #[tokio::test]
 async fn several_candidates_go_through_instance_selection_with_feedback() {
     let f = Fixture::start(vec![], 5_000).await;
