@@ -29,6 +29,9 @@ pub struct Config {
     pub max_unpacked_bytes: u64,
     /// Most entries an archive may hold.
     pub max_archive_files: u64,
+    /// Most pixels one uploaded image (colour, depth, instance mask) may declare; checked
+    /// from the image's header before decoding (413 `image_too_large` above).
+    pub max_image_pixels: u64,
     /// Concurrent grounding jobs.
     pub workers: usize,
     /// Attempts before a job that keeps dying with the process is failed.
@@ -61,6 +64,7 @@ impl Default for Config {
             max_upload_bytes: 2 << 30,
             max_unpacked_bytes: 8 << 30,
             max_archive_files: 200_000,
+            max_image_pixels: crate::scene::import::DEFAULT_MAX_IMAGE_PIXELS,
             workers: 2,
             max_attempts: 3,
             pipeline: "vlm".into(),
@@ -141,6 +145,7 @@ impl Config {
         num("GROUNDER_MAX_UPLOAD_BYTES", &mut self.max_upload_bytes)?;
         num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;
         num("GROUNDER_MAX_ARCHIVE_FILES", &mut self.max_archive_files)?;
+        num("GROUNDER_MAX_IMAGE_PIXELS", &mut self.max_image_pixels)?;
         Ok(())
     }
 }

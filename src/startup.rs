@@ -51,9 +51,18 @@ impl Application {
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", cfg.addr))?;
         let needs_instances = detector.as_ref().is_some_and(|d| d.needs_instances());
+        let candidates =
+            cfg.agent
+                .candidates
+                .enabled
+                .then(|| crate::jobs::indexing::CandidateSetup {
+                    params: cfg.agent.candidates.clone(),
+                    layout: cfg.agent.geometry.layout.clone(),
+                });
         let on_scene_stored = crate::jobs::indexing::hook(
             cfg.detector.clone(),
             detector,
+            candidates,
             store.clone(),
             jobs.clone(),
         );

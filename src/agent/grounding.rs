@@ -7,10 +7,11 @@ use serde_json::{json, Value};
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::preselect::{same_class, Preselection};
+use super::preselect::Preselection;
+use super::proposal::{propose, BoxSource, Outcome};
 use super::stitching::Grids;
 use super::vlm_log::VlmLog;
-use super::{instance, step, vlm_failure, VlmGrounder};
+use super::{step, vlm_failure, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
 use crate::vision::{DetectInput, Detection, InstanceMask};
 use crate::vlm::json::{parse_grounding, QueryAnalysis};
@@ -24,6 +25,8 @@ pub struct Choice {
     pub bbox: [f32; 4],
     pub image: Arc<RgbImage>,
     pub feedback_rounds: usize,
+    /// Which path gave the box.
+    pub source: BoxSource,
 }
 
 /// Conversation state shared with instance selection.
@@ -113,7 +116,14 @@ pub async fn redetect(
 
 /// Read a 16-bit instance-id PNG.
 pub fn read_instance_mask(path: &std::path::Path) -> anyhow::Result<InstanceMask> {
-    let img = image::open(path)
+    let mut reader = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(|e| anyhow::anyhow!("cannot read instance mask {}: {e}", path.display()))?;
+    reader.limits(crate::scene::import::decode_limits(
+        crate::scene::import::DEFAULT_MAX_IMAGE_PIXELS,
+    ));
+    let img = reader
+        .decode()
         .map_err(|e| anyhow::anyhow!("cannot read instance mask {}: {e}", path.display()))?
         .into_luma16();
     Ok(InstanceMask {
@@ -177,7 +187,6 @@ pub async fn run(
         rounds: 0,
     };
     let mut exchanges: Vec<Value> = Vec::new();
-    let class = analysis.target_class.as_str();
     loop {
         let (reply, mut rec) = conv.ask(g, budget).await?;
         let answer = match parse_grounding(&reply) {
@@ -220,58 +229,25 @@ pub async fn run(
         .await;
         exchanges = Vec::new();
 
-        let Some(det_class) = &pre.detector_class else {
-            return Err(JobFailure::new("detector_cannot_see_class", format!("the detector has no class for {class:?}, so no box can be proposed in the chosen image")));
-        };
-        let td = Instant::now();
         let image = super::stitching::decode(&ctx.scene, &[idx])
             .await?
             .remove(&idx)
             .ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?;
-        let dets: Vec<Detection> = redetect(g, ctx, idx, image.clone())
-            .await?
-            .into_iter()
-            .filter(|d| same_class(&d.label, det_class))
-            .collect();
-        let det_json: Vec<Value> = dets
-            .iter()
-            .map(|d| json!({"box": d.bbox, "score": d.score, "label": d.label}))
-            .collect();
-        step(ctx, "detection", json!({"image_id": format!("{idx:05}"), "class": det_class}), json!({"image_id": format!("{idx:05}"), "frame": ctx.scene.frames[idx].name, "detections": det_json}), td).await;
-        match dets.len() {
-            0 => {
-                let fb = g.prompts.feedback_object_not_existing(idx as u32, class);
-                exchanges.push(json!({"feedback": fb, "invalid": format!("no {det_class} detected in image {idx:05}")}));
-                if let Err(e) = conv.feedback(g, fb, "no target detected in the chosen image") {
-                    return fail_with_trace(ctx, e, exchanges, t).await;
-                }
-            }
-            1 => {
-                step(
-                    ctx,
-                    "instance_selection",
-                    json!({"candidates": 1}),
-                    json!({"index": 0, "box": dets[0].bbox, "asked_vlm": false}),
-                    td,
-                )
-                .await;
-                return Ok(Choice {
-                    frame_idx: idx,
-                    bbox: dets[0].bbox,
-                    image,
-                    feedback_rounds: conv.rounds,
-                });
-            }
-            _ => {
-                let bbox =
-                    instance::select(g, ctx, budget, &mut conv, analysis, idx, &image, &dets)
-                        .await?;
+        match propose(g, ctx, budget, &mut conv, analysis, pre, idx, &image).await? {
+            Outcome::Box(bbox, source) => {
                 return Ok(Choice {
                     frame_idx: idx,
                     bbox,
                     image,
                     feedback_rounds: conv.rounds,
+                    source,
                 });
+            }
+            Outcome::NotHere { feedback, why } => {
+                exchanges.push(json!({"feedback": feedback, "invalid": why}));
+                if let Err(e) = conv.feedback(g, feedback, "no target in the chosen image") {
+                    return fail_with_trace(ctx, e, exchanges, t).await;
+                }
             }
         }
     }

@@ -1,6 +1,8 @@
 //! Stage 4b: instance selection. With several candidates in the chosen frame, the VLM sees
 //! the frame with "ID:n" labels at the box centres and answers an object id; an invalid id
-//! gets feedback within the same retry budget.
+//! gets feedback within the same retry budget. The same exchange serves set-of-marks
+//! selection over class-agnostic candidates ([`SelectKind::Marks`]: its own prompt, and the
+//! regions' outlines drawn).
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -16,6 +18,30 @@ use crate::vlm::json::{parse_instance, QueryAnalysis};
 use crate::vlm::prompts::{InstanceInput, ReplyKind};
 use crate::vlm::{CallBudget, ImageData, Message};
 
+/// What the candidates are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SelectKind {
+    /// Detections of the target class.
+    Detections,
+    /// Class-agnostic regions (set-of-marks).
+    Marks,
+}
+
+impl SelectKind {
+    fn step(self) -> &'static str {
+        match self {
+            SelectKind::Detections => "instance_selection",
+            SelectKind::Marks => "mark_selection",
+        }
+    }
+    fn artifact(self) -> &'static str {
+        match self {
+            SelectKind::Detections => "instances",
+            SelectKind::Marks => "marks",
+        }
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 pub async fn select(
     g: &VlmGrounder,
@@ -26,6 +52,7 @@ pub async fn select(
     idx: usize,
     image: &RgbImage,
     dets: &[Detection],
+    kind: SelectKind,
 ) -> Result<[f32; 4], JobFailure> {
     let t = Instant::now();
     let boxes: Vec<(String, [f32; 4])> = dets
@@ -33,7 +60,8 @@ pub async fn select(
         .enumerate()
         .map(|(i, d)| (i.to_string(), d.bbox))
         .collect();
-    let opts = g.params.annotate.clone();
+    let mut opts = g.params.annotate.clone();
+    opts.draw_boxes |= kind == SelectKind::Marks;
     let img = image.clone();
     let quality = g.params.stitch.jpeg_quality;
     let jpeg = tokio::task::spawn_blocking(move || {
@@ -45,19 +73,23 @@ pub async fn select(
     let url = ctx
         .trace
         .artifact(
-            &format!("instances_{idx:05}_{}.jpg", conv.rounds),
+            &format!("{}_{idx:05}_{}.jpg", kind.artifact(), conv.rounds),
             jpeg.clone(),
         )
         .await?;
     let candidates: Vec<[f32; 4]> = dets.iter().map(|d| d.bbox).collect();
-    let text = g.prompts.instance_selection(&InstanceInput {
+    let input = InstanceInput {
         query: &ctx.query,
         target_class: &analysis.target_class,
         image_id: idx as u32,
         width: image.width(),
         height: image.height(),
         candidates: &candidates,
-    });
+    };
+    let text = match kind {
+        SelectKind::Detections => g.prompts.instance_selection(&input),
+        SelectKind::Marks => g.prompts.mark_selection(&input),
+    };
     conv.messages
         .push(Message::user_with_images(text, vec![ImageData::jpeg(jpeg)]));
     conv.image_urls.push(url.clone());
@@ -70,7 +102,7 @@ pub async fn select(
                 let i = a.object_id as usize;
                 step(
                     ctx,
-                    "instance_selection",
+                    kind.step(),
                     json!({"candidates": dets.len(), "annotated": url}),
                     json!({"index": i, "box": dets[i].bbox, "asked_vlm": true, "reasoning": a.reasoning, "vlm": exchanges}),
                     t,
@@ -94,7 +126,7 @@ pub async fn select(
         if let Err(e) = conv.feedback(g, fb, &why) {
             step(
                 ctx,
-                "instance_selection",
+                kind.step(),
                 json!({"candidates": dets.len(), "annotated": url}),
                 json!({"failed": true, "vlm": exchanges}),
                 t,

@@ -5,6 +5,9 @@
 
 pub mod grounding;
 pub mod instance;
+pub mod marks;
+pub mod proposal;
+pub mod vlm_box;
 pub mod preselect;
 pub mod projection;
 pub mod query_analysis;
@@ -22,7 +25,9 @@ use crate::geometry::GeometryParams;
 use crate::jobs::{Grounder, GroundingOutput, JobContext, JobFailure};
 use crate::stitch::annotate::AnnotateOptions;
 use crate::stitch::render::StitchOptions;
+use crate::vision::candidates::CandidateParams;
 use crate::vision::{Detector, Segmenter};
+use crate::vlm::boxes::BoxFormat;
 use crate::vlm::json::QueryAnalysis;
 use crate::vlm::prompts::Prompts;
 use crate::vlm::{CallBudget, VlmClient, VlmError};
@@ -53,9 +58,14 @@ pub struct AgentParams {
     pub max_vlm_calls: u32,
     /// Wall time a job may take, seconds.
     pub max_job_seconds: u64,
+    /// How a VLM asked for a box (`detector = "vlm"`) writes it: "pixels",
+    /// "norm1000" ([x1, y1, x2, y2] in 0–1000) or "yxyx1000" ([ymin, xmin, ymax, xmax]).
+    pub box_format: BoxFormat,
     pub stitch: StitchOptions,
     pub annotate: AnnotateOptions,
     pub geometry: GeometryParams,
+    /// Class-agnostic candidates from the scan (set-of-marks when no detector can help).
+    pub candidates: CandidateParams,
 }
 
 impl Default for AgentParams {
@@ -69,9 +79,11 @@ impl Default for AgentParams {
             good_depth_fraction: 0.2,
             max_vlm_calls: 16,
             max_job_seconds: 600,
+            box_format: BoxFormat::default(),
             stitch: StitchOptions::default(),
             annotate: AnnotateOptions::default(),
             geometry: GeometryParams::default(),
+            candidates: CandidateParams::default(),
         }
     }
 }
@@ -85,6 +97,8 @@ pub struct VlmGrounder {
     pub detector_key: String,
     pub segmenter: Arc<dyn Segmenter>,
     pub params: AgentParams,
+    /// The detector is "vlm": the VLM is asked for the target's box in the chosen image.
+    pub vlm_boxes: bool,
     analysis_cache: Mutex<HashMap<String, QueryAnalysis>>,
 }
 
@@ -100,6 +114,7 @@ impl VlmGrounder {
         Self {
             client,
             prompts,
+            vlm_boxes: detector.name() == "vlm",
             detector,
             detector_key,
             segmenter,
@@ -192,6 +207,7 @@ impl VlmGrounder {
             json!(ctx.scene.frames[choice.frame_idx].name),
         );
         extra.insert("detection_box".into(), json!(choice.bbox));
+        extra.insert("box_source".into(), json!(choice.source));
         extra.insert("target_class".into(), json!(analysis.target_class));
         extra.insert("views_used".into(), json!(projected.views_used));
         extra.insert("usage".into(), json!({"vlm_calls": budget.calls_used(), "total_tokens": usage.total, "prompt_tokens": usage.prompt, "completion_tokens": usage.completion}));

@@ -90,6 +90,7 @@ pub async fn upload(
     let limits = Limits {
         max_bytes: state.cfg.max_unpacked_bytes,
         max_files: state.cfg.max_archive_files,
+        max_image_pixels: state.cfg.max_image_pixels,
     };
     let work_dir = tmp.join(&id);
     let scene_dir = state.jobs.scene_dir(&id);

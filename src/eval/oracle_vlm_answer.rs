@@ -11,6 +11,7 @@
 use super::oracle_vlm_truth::{
     color_histogram_bytes, color_histogram_file, hist_distance, QueryRec, SceneTruth, Truth,
 };
+use crate::vlm::boxes::BoxFormat;
 use crate::vlm::prompts::markers;
 use rand::Rng;
 use serde_json::json;
@@ -34,8 +35,10 @@ pub enum Mode {
     Analysis,
     /// Image selection.
     Grounding,
-    /// Object selection.
+    /// Object selection (detections or set-of-marks regions).
     Instance,
+    /// The target's 2D box in a frame.
+    Box,
 }
 
 /// The facts the oracle extracted from a conversation.
@@ -55,6 +58,8 @@ pub struct Conversation {
     pub frame_size: Option<(u32, u32)>,
     /// Instance selection: candidate boxes by object id.
     pub candidates: Vec<[f32; 4]>,
+    /// Box request: the coordinate convention asked for.
+    pub box_format: Option<BoxFormat>,
     /// Images of the latest task message.
     pub images: Vec<Vec<u8>>,
 }
@@ -75,8 +80,10 @@ fn five_digit_ids(s: &str) -> Vec<u32> {
 pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
     let users: Vec<&SeenMessage> = messages.iter().filter(|m| m.role == "user").collect();
     let (pos, mode) = users.iter().enumerate().rev().find_map(|(i, m)| {
-        if has_marker(&m.text, markers::INSTANCE) {
+        if has_marker(&m.text, markers::INSTANCE) || has_marker(&m.text, markers::MARKS) {
             Some((i, Mode::Instance))
+        } else if has_marker(&m.text, markers::BOX) {
+            Some((i, Mode::Box))
         } else if has_marker(&m.text, markers::GROUNDING) {
             Some((i, Mode::Grounding))
         } else if has_marker(&m.text, markers::QUERY_ANALYSIS) {
@@ -117,6 +124,7 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
         frame: None,
         frame_size: None,
         candidates: Vec::new(),
+        box_format: None,
         // Images of the task message; if the agent sent them in separate messages, all
         // images from the task message on.
         images: if task.images.is_empty() {
@@ -128,8 +136,11 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
             task.images.clone()
         },
     };
-    if mode == Mode::Instance {
+    if mode == Mode::Instance || mode == Mode::Box {
         let t = &task.text;
+        conv.box_format = t.lines().find_map(|l| {
+            BoxFormat::parse(l.trim().strip_prefix("Box format:")?)
+        });
         conv.frame = t.find("frame ").and_then(|i| {
             let head: String = t[i + 6..].chars().take(5).collect();
             five_digit_ids(&head).first().copied()
@@ -189,7 +200,7 @@ fn resolve<'a>(
             continue;
         };
         let ids: Vec<u32> = match (conv.mode, conv.frame, &conv.offered) {
-            (Mode::Instance, Some(f), _) => vec![f],
+            (Mode::Instance | Mode::Box, Some(f), _) => vec![f],
             (_, _, Some(o)) => o.clone(),
             _ => (0..scene.frames.len() as u32).take(12).collect(),
         };
@@ -371,7 +382,45 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             }
             json!({"reasoning": format!("oracle: {why}"), "object_id": id}).to_string()
         }
+        Mode::Box => {
+            let format = conv.box_format.unwrap_or_default();
+            let size = conv.frame_size.unwrap_or((1, 1));
+            let truth_box = resolved
+                .as_ref()
+                .and_then(|(q, s)| target_box(s.as_deref()?, q.target_id, conv));
+            let Some(mut b) = truth_box else {
+                return json!({"reasoning": "oracle: the target is not in this frame", "bbox_2d": null})
+                    .to_string();
+            };
+            let mut why = "the target's extent in this frame";
+            if kind == 0 {
+                // Beside the target: the box of whatever stands next to it.
+                let w = b[2] - b[0];
+                let shift = if b[2] + w <= size.0 as f32 { w } else { -w.min(b[0]) };
+                b = [b[0] + shift, b[1], b[2] + shift, b[3]];
+                why = "injected error: a box beside the target";
+            }
+            if kind == 1 {
+                b = [b[0], b[1], size.0 as f32 * 1.5 + 10.0, b[3]];
+                why = "injected error: a box outside the frame";
+            }
+            let e = format.encode(b, size);
+            json!({"reasoning": format!("oracle: {why}"), "bbox_2d": [e[0].round(), e[1].round(), e[2].round(), e[3].round()]})
+                .to_string()
+        }
     }
+}
+
+/// The target's box in the frame of a box request, in the pixels the prompt states.
+pub fn target_box(scene: &SceneTruth, target: u32, conv: &Conversation) -> Option<[f32; 4]> {
+    let frame = scene.frames.get(conv.frame? as usize)?;
+    let gt = frame.instances.get(&target)?.bbox;
+    let (w, h) = conv.frame_size.filter(|s| s.0 > 0 && s.1 > 0)?;
+    let (sx, sy) = (
+        w as f32 / frame.size.0.max(1) as f32,
+        h as f32 / frame.size.1.max(1) as f32,
+    );
+    Some([gt[0] * sx, gt[1] * sy, gt[2] * sx, gt[3] * sy])
 }
 
 #[cfg(test)]

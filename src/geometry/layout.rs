@@ -480,6 +480,27 @@ impl RoomLayout {
         (c * x + s * y, -s * x + c * y)
     }
 
+    /// The side of the room nearest to `p` among those found, as (side, signed distance):
+    /// sides 0–3 are the walls u low, u high, v low, v high, 4 the floor, 5 the ceiling; the
+    /// distance is positive inside the room and negative beyond that side. `None` when no
+    /// side was found.
+    pub fn nearest_side(&self, p: &Point3<f64>) -> Option<(usize, f64)> {
+        let (pu, pv) = self.turn(p.x, p.y);
+        let dists = [
+            self.u[0].map(|l| pu - l),
+            self.u[1].map(|h| h - pu),
+            self.v[0].map(|l| pv - l),
+            self.v[1].map(|h| h - pv),
+            self.floor.map(|f| p.z - f),
+            self.ceiling.map(|c| c - p.z),
+        ];
+        dists
+            .iter()
+            .enumerate()
+            .filter_map(|(i, d)| d.map(|d| (i, d)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
     /// The parameter t at which the ray `o + t d` (t > 0) leaves the box through a side
     /// that was found; `None` when `o` is outside the box or the ray may leave through an
     /// open side first (it gets past the measured points' `reach` on that side before).

@@ -10,22 +10,56 @@ use std::sync::Arc;
 use crate::jobs::JobSystem;
 use crate::scene::FrameData;
 use crate::store::Store;
+use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
+use crate::vision::candidates::{frame_candidates, CandidateParams};
 use crate::vision::{DetectInput, Detection, Detector};
 
 /// The hook the upload handler calls with a new scene id.
 pub type IndexHook = Arc<dyn Fn(String) + Send + Sync>;
 
-/// Detect on one stored frame (decoding its JPEG; instance masks for the oracle) and store
-/// its preview. A preview that cannot be written is only logged: stitching then reads the
-/// full frame.
-pub fn detect_frame(
+/// Class-agnostic candidates at indexing: their settings and the room they are found in.
+#[derive(Clone)]
+pub struct CandidateSetup {
+    pub params: CandidateParams,
+    pub layout: LayoutParams,
+}
+
+/// One frame's index: the detector's boxes and, when asked for, the class-agnostic
+/// candidates.
+pub struct FrameIndex {
+    pub detections: Vec<Detection>,
+    pub candidates: Option<Vec<Detection>>,
+}
+
+/// Detect on one stored frame (decoding its JPEG; instance masks for the oracle), find its
+/// class-agnostic candidates when `candidates` is given, and store its preview. A preview
+/// that cannot be written is only logged: stitching then reads the full frame.
+pub fn index_frame(
     detector: &dyn Detector,
     frame: &FrameData,
     labels: Option<&HashMap<u32, String>>,
-) -> anyhow::Result<Vec<Detection>> {
+    candidates: Option<(&CandidateSetup, Option<&RoomLayout>)>,
+) -> anyhow::Result<FrameIndex> {
     let img = image::open(&frame.color_path)
         .map_err(|e| anyhow::anyhow!("frame {}: cannot decode colour: {e}", frame.name))?
         .to_rgb8();
+    let candidates = candidates.map(|(setup, room)| {
+        frame_candidates(
+            &frame.camera,
+            &frame.depth,
+            &img,
+            room,
+            &setup.layout,
+            &setup.params,
+        )
+        .into_iter()
+        .map(|c| Detection {
+            label: c.kind.label().to_string(),
+            score: 1.0,
+            bbox: c.bbox,
+        })
+        .collect()
+    });
     if let Err(e) = store_preview(&img, &frame.preview_path()) {
         tracing::warn!(frame = %frame.name, "cannot store the frame's preview: {e:#}");
     }
@@ -38,11 +72,15 @@ pub fn detect_frame(
         ),
         _ => None,
     };
-    detector.detect(&DetectInput {
+    let detections = detector.detect(&DetectInput {
         color: &img,
         instances: instances.as_ref(),
         labels,
         frame_key: frame.idx as u64,
+    })?;
+    Ok(FrameIndex {
+        detections,
+        candidates,
     })
 }
 
@@ -59,18 +97,20 @@ fn store_preview(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
 pub fn hook(
     detector_key: String,
     detector: Option<Arc<dyn Detector>>,
+    candidates: Option<CandidateSetup>,
     store: Store,
     jobs: JobSystem,
 ) -> IndexHook {
     Arc::new(move |scene_id: String| {
-        let (store, jobs, detector, key) = (
+        let (store, jobs, detector, key, cands) = (
             store.clone(),
             jobs.clone(),
             detector.clone(),
             detector_key.clone(),
+            candidates.clone(),
         );
         tokio::spawn(async move {
-            let outcome = index_scene(&store, &jobs, &scene_id, &key, detector).await;
+            let outcome = index_scene(&store, &jobs, &scene_id, &key, detector, cands).await;
             let (status, err) = match outcome {
                 Ok(()) => ("ready", None),
                 Err(e) => ("failed", Some(format!("{e:#}"))),
@@ -100,6 +140,7 @@ async fn index_scene(
     scene_id: &str,
     key: &str,
     detector: Option<Arc<dyn Detector>>,
+    candidates: Option<CandidateSetup>,
 ) -> anyhow::Result<()> {
     let Some(detector) = detector else {
         anyhow::bail!("detector {key:?} could not be loaded (see /readyz)");
@@ -114,13 +155,36 @@ async fn index_scene(
         .map(|l| l.into_iter().collect());
     let usable: Vec<FrameData> = scene.frames.iter().filter(|f| f.usable).cloned().collect();
     store.reset_index(scene_id, key, usable.len()).await?;
+    // The room's box, from every frame's depth, tells structure from objects.
+    let room: Option<Arc<RoomLayout>> = match &candidates {
+        Some(setup) if setup.layout.enabled => {
+            let (frames, lp) = (usable.clone(), setup.layout.clone());
+            tokio::task::spawn_blocking(move || {
+                let pairs: Vec<_> = frames.iter().map(|f| (&f.camera, f.depth.as_ref())).collect();
+                estimate_room(&pairs, &lp).map(Arc::new)
+            })
+            .await?
+        }
+        _ => None,
+    };
     for frame in usable {
-        let (d, l) = (detector.clone(), labels.clone());
-        let (idx, dets) = tokio::task::spawn_blocking(move || {
-            detect_frame(d.as_ref(), &frame, l.as_ref()).map(|x| (frame.idx, x))
+        let (d, l, c, r) = (
+            detector.clone(),
+            labels.clone(),
+            candidates.clone(),
+            room.clone(),
+        );
+        let (idx, index) = tokio::task::spawn_blocking(move || {
+            let c = c.as_ref().map(|c| (c, r.as_deref()));
+            index_frame(d.as_ref(), &frame, l.as_ref(), c).map(|x| (frame.idx, x))
         })
         .await??;
-        store.put_detections(scene_id, key, idx, &dets).await?;
+        if let Some(c) = &index.candidates {
+            store.put_candidates(scene_id, idx, c).await?;
+        }
+        store
+            .put_detections(scene_id, key, idx, &index.detections)
+            .await?;
     }
     Ok(())
 }

@@ -67,7 +67,7 @@ pub fn prepare_scene(
     archive::unpack(upload, kind, work_dir, limits)?;
     let root = format::find_scene_root(work_dir)?;
     let files = format::scan(&root)?;
-    let mut scene = import::import(&files, work_dir)?;
+    let mut scene = import::import(&files, work_dir, limits.max_image_pixels)?;
 
     let mut guard = Cleanup(Some(scene_dir.to_path_buf()));
     let color_dir = scene_dir.join("color");

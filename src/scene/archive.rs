@@ -23,6 +23,8 @@ pub enum ArchiveKind {
 pub struct Limits {
     pub max_bytes: u64,
     pub max_files: u64,
+    /// Most pixels one image of the scene may declare (checked from its header).
+    pub max_image_pixels: u64,
 }
 
 /// Decide the kind from the leading bytes (authoritative) with the content type as a hint.

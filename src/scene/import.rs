@@ -52,12 +52,48 @@ fn image_size(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {
         .map_err(|e| SceneError::BadImage(format!("{what}: unreadable image: {e}")))
 }
 
-/// Decode a 16-bit depth PNG.
-pub fn read_depth_png(path: &Path, what: &str) -> Result<DepthMap, SceneError> {
+/// Most pixels one uploaded image may declare (colour, depth or instance mask) when the
+/// caller names no limit: 50 Mpx holds an 8K frame. Anything larger is refused from its
+/// header, before a byte of pixels is allocated.
+pub const DEFAULT_MAX_IMAGE_PIXELS: u64 = 50_000_000;
+
+/// Decoder limits for an image of at most `max_pixels` pixels (at most 8 bytes each).
+pub fn decode_limits(max_pixels: u64) -> image::Limits {
+    let mut limits = image::Limits::default();
+    let side = u32::try_from(max_pixels).unwrap_or(u32::MAX);
+    limits.max_image_width = Some(side);
+    limits.max_image_height = Some(side);
+    limits.max_alloc = Some(max_pixels.saturating_mul(8));
+    limits
+}
+
+/// Refuse an image whose header declares more than `max_pixels` pixels.
+pub fn check_pixels(w: u32, h: u32, max_pixels: u64, what: &str) -> Result<(), SceneError> {
+    let n = u64::from(w) * u64::from(h);
+    if n > max_pixels {
+        return Err(SceneError::ImageTooLarge(format!(
+            "{what}: the image declares {w}x{h} = {n} pixels, over the limit of {max_pixels} \
+             (max_image_pixels)"
+        )));
+    }
+    Ok(())
+}
+
+/// Decode a 16-bit depth PNG of at most `max_pixels` pixels. The size comes from the
+/// header and is checked before anything is allocated.
+pub fn read_depth_png(path: &Path, what: &str, max_pixels: u64) -> Result<DepthMap, SceneError> {
     let file = std::fs::File::open(path)
         .map_err(|e| SceneError::BadImage(format!("{what}: cannot open: {e}")))?;
-    let dec = image::codecs::png::PngDecoder::new(BufReader::new(file))
-        .map_err(|e| SceneError::BadImage(format!("{what}: not a readable PNG: {e}")))?;
+    let dec = image::codecs::png::PngDecoder::with_limits(
+        BufReader::new(file),
+        decode_limits(max_pixels),
+    )
+    .map_err(|e| match e {
+        image::ImageError::Limits(_) => SceneError::ImageTooLarge(format!(
+            "{what}: the PNG is over the limit of {max_pixels} pixels (max_image_pixels): {e}"
+        )),
+        e => SceneError::BadImage(format!("{what}: not a readable PNG: {e}")),
+    })?;
     if dec.color_type() != image::ColorType::L16 {
         return Err(SceneError::BadImage(format!(
             "{what}: depth must be a 16-bit single-channel PNG in millimetres, found {:?}",
@@ -65,7 +101,10 @@ pub fn read_depth_png(path: &Path, what: &str) -> Result<DepthMap, SceneError> {
         )));
     }
     let (w, h) = dec.dimensions();
-    let mut buf = vec![0u8; dec.total_bytes() as usize];
+    check_pixels(w, h, max_pixels, what)?;
+    let len = usize::try_from(dec.total_bytes())
+        .map_err(|_| SceneError::ImageTooLarge(format!("{what}: the image is too large")))?;
+    let mut buf = vec![0u8; len];
     dec.read_image(&mut buf)
         .map_err(|e| SceneError::BadImage(format!("{what}: truncated or corrupt PNG: {e}")))?;
     // The decoder yields native-endian u16 samples.
@@ -76,7 +115,7 @@ pub fn read_depth_png(path: &Path, what: &str) -> Result<DepthMap, SceneError> {
     Ok(DepthMap::new(w, h, data))
 }
 
-fn check_jpeg(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {
+fn check_jpeg(path: &Path, what: &str, max_pixels: u64) -> Result<(u32, u32), SceneError> {
     let bytes = std::fs::read(path)
         .map_err(|e| SceneError::BadImage(format!("{what}: cannot read: {e}")))?;
     // Decoders conceal truncation by filling grey; a complete JPEG ends with EOI (FF D9).
@@ -90,7 +129,17 @@ fn check_jpeg(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {
             "{what}: not a complete JPEG (missing start or end marker; truncated?)"
         )));
     }
-    let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg)
+    let mut reader =
+        image::ImageReader::with_format(std::io::Cursor::new(&bytes[..]), image::ImageFormat::Jpeg);
+    let (w, h) = reader
+        .into_dimensions()
+        .map_err(|e| SceneError::BadImage(format!("{what}: unreadable JPEG header: {e}")))?;
+    check_pixels(w, h, max_pixels, what)?;
+    reader =
+        image::ImageReader::with_format(std::io::Cursor::new(&bytes[..]), image::ImageFormat::Jpeg);
+    reader.limits(decode_limits(max_pixels));
+    let img = reader
+        .decode()
         .map_err(|e| SceneError::BadImage(format!("{what}: unreadable or truncated JPEG: {e}")))?;
     Ok((img.width(), img.height()))
 }
@@ -112,10 +161,17 @@ fn depth_size_ok(w: u32, h: u32, color: &Intrinsics, depth_k: Option<&Intrinsics
 
 /// Validate every file of a scene directory and decode poses and depth (in parallel).
 /// `work_root` is the unpack folder (its own name is not the scene's name).
-pub fn import(files: &SceneFiles, work_root: &Path) -> Result<ImportedScene, SceneError> {
+/// Every image is refused from its header when it declares more than `max_pixels` pixels.
+pub fn import(
+    files: &SceneFiles,
+    work_root: &Path,
+    max_pixels: u64,
+) -> Result<ImportedScene, SceneError> {
     let k = format::read_matrix(&files.intrinsic_color, "colour intrinsics")?;
     let first = &files.frames[0];
-    let (cw, ch) = image_size(&first.color, &format!("frame {} colour", first.name))?;
+    let what = format!("frame {} colour", first.name);
+    let (cw, ch) = image_size(&first.color, &what)?;
+    check_pixels(cw, ch, max_pixels, &what)?;
     let color = Intrinsics::from_matrix(&k, cw, ch);
     if !(color.fx.is_finite() && color.fy.is_finite() && color.fx > 0.0 && color.fy > 0.0) {
         return Err(SceneError::Malformed(
@@ -146,7 +202,7 @@ pub fn import(files: &SceneFiles, work_root: &Path) -> Result<ImportedScene, Sce
         .par_iter()
         .enumerate()
         .map(|(idx, f)| {
-            let size = check_jpeg(&f.color, &format!("frame {} colour", f.name))?;
+            let size = check_jpeg(&f.color, &format!("frame {} colour", f.name), max_pixels)?;
             if size != (cw, ch) {
                 return Err(SceneError::BadImage(format!(
                     "frame {} colour is {}x{} but frame {} is {cw}x{ch}; all colour frames must share one size",
@@ -154,7 +210,8 @@ pub fn import(files: &SceneFiles, work_root: &Path) -> Result<ImportedScene, Sce
                 )));
             }
             let depth_path = f.depth.as_ref().ok_or_else(|| SceneError::Malformed(format!("frame {}: no depth", f.name)))?;
-            let depth = read_depth_png(depth_path, &format!("frame {} depth", f.name))?;
+            let depth =
+                read_depth_png(depth_path, &format!("frame {} depth", f.name), max_pixels)?;
             let pose_path = f.pose.as_ref().ok_or_else(|| SceneError::Malformed(format!("frame {}: no pose", f.name)))?;
             let pose = format::read_matrix(pose_path, &format!("frame {} pose", f.name))?;
             let usable = is_finite_matrix(&pose);

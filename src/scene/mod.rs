@@ -30,6 +30,8 @@ pub enum SceneError {
     #[error("{0}")]
     DepthSize(String),
     #[error("{0}")]
+    ImageTooLarge(String),
+    #[error("{0}")]
     Io(String),
 }
 
@@ -46,6 +48,7 @@ impl SceneError {
             SceneError::Malformed(_) => "malformed_scene",
             SceneError::BadImage(_) => "unreadable_image",
             SceneError::DepthSize(_) => "depth_size_mismatch",
+            SceneError::ImageTooLarge(_) => "image_too_large",
             SceneError::Io(_) => "storage_error",
         }
     }

@@ -14,6 +14,11 @@ use crate::scene::model::{decompress_depth, pose_from_blob, pose_to_blob};
 use crate::scene::{FrameData, SceneData};
 use crate::vision::Detection;
 
+/// Detector key under which class-agnostic candidates are cached.
+pub const CANDIDATES_KEY: &str = "candidates";
+/// Label of the row that marks a frame indexed with candidates where none were found.
+const CANDIDATES_NONE: &str = "(none)";
+
 /// A scene as listed over the API.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct SceneRecord {
@@ -257,6 +262,85 @@ impl Store {
         Ok(())
     }
 
+    /// Store one frame's class-agnostic candidates (cached like detections, under
+    /// [`CANDIDATES_KEY`]; indexing progress is counted by [`Self::put_detections`]).
+    pub async fn put_candidates(
+        &self,
+        scene_id: &str,
+        frame_idx: usize,
+        cands: &[Detection],
+    ) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
+            .bind(scene_id)
+            .bind(CANDIDATES_KEY)
+            .bind(frame_idx as i64)
+            .execute(&mut *tx)
+            .await?;
+        let none = [Detection {
+            label: CANDIDATES_NONE.into(),
+            score: 0.0,
+            bbox: [0.0; 4],
+        }];
+        let rows = if cands.is_empty() { &none[..] } else { cands };
+        for d in rows {
+            sqlx::query("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)")
+                .bind(scene_id)
+                .bind(CANDIDATES_KEY)
+                .bind(frame_idx as i64)
+                .bind(&d.label)
+                .bind(d.score as f64)
+                .bind(d.bbox[0] as f64)
+                .bind(d.bbox[1] as f64)
+                .bind(d.bbox[2] as f64)
+                .bind(d.bbox[3] as f64)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// One frame's cached candidates, largest first; `None` when the scene was indexed
+    /// without them.
+    pub async fn frame_candidates(
+        &self,
+        scene_id: &str,
+        frame_idx: usize,
+    ) -> Result<Option<Vec<Detection>>, StoreError> {
+        let rows = sqlx::query("SELECT label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? ORDER BY rowid")
+            .bind(scene_id)
+            .bind(CANDIDATES_KEY)
+            .bind(frame_idx as i64)
+            .fetch_all(&self.pool)
+            .await?;
+        let mut out = Vec::with_capacity(rows.len());
+        for r in rows {
+            let f = |k: &str| r.try_get::<f64, _>(k).map(|v| v as f32);
+            let label: String = r.try_get("label")?;
+            if label == CANDIDATES_NONE {
+                continue;
+            }
+            out.push(Detection {
+                label,
+                score: f("score")?,
+                bbox: [f("x1")?, f("y1")?, f("x2")?, f("y2")?],
+            });
+        }
+        if out.is_empty() {
+            // A frame indexed with candidates and none found holds one marker row.
+            let marked: Option<i64> = sqlx::query_scalar("SELECT 1 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? AND label = ? LIMIT 1")
+                .bind(scene_id)
+                .bind(CANDIDATES_KEY)
+                .bind(frame_idx as i64)
+                .bind(CANDIDATES_NONE)
+                .fetch_optional(&self.pool)
+                .await?;
+            return Ok(marked.map(|_| Vec::new()));
+        }
+        Ok(Some(out))
+    }
+
     /// Reset indexing progress (before (re-)indexing with `detector`).
     pub async fn reset_index(
         &self,
@@ -265,9 +349,10 @@ impl Store {
         total: usize,
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ?")
+        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector IN (?, ?)")
             .bind(scene_id)
             .bind(detector)
+            .bind(CANDIDATES_KEY)
             .execute(&mut *tx)
             .await?;
         sqlx::query("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ?")

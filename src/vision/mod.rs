@@ -18,6 +18,7 @@ use crate::geometry::camera::{DepthMap, FrameCamera};
 use crate::geometry::mask::Mask;
 
 pub mod box_seg;
+pub mod candidates;
 pub mod centernet;
 pub mod cli;
 pub mod common;
@@ -164,6 +165,26 @@ pub trait Detector: Send + Sync {
     }
 }
 
+/// `detector = "vlm"`: no local detector. Indexing finds no detections (pre-selection
+/// samples frames evenly) and the pipeline asks the VLM for the target's box in the image
+/// it chose.
+pub struct VlmBoxes;
+
+impl Detector for VlmBoxes {
+    fn name(&self) -> String {
+        "vlm".into()
+    }
+    fn vocabulary(&self) -> Vec<String> {
+        Vec::new()
+    }
+    fn can_see(&self, _label: &str) -> Option<String> {
+        None
+    }
+    fn detect(&self, _input: &DetectInput<'_>) -> Result<Vec<Detection>> {
+        Ok(Vec::new())
+    }
+}
+
 /// What a segmenter gets for one frame.
 #[derive(Debug, Clone, Copy)]
 pub struct SegmentInput<'a> {
@@ -210,7 +231,8 @@ pub fn build_detector(spec: &str, cfg: &VisionConfig) -> Result<Arc<dyn Detector
             Arc::new(yolo::Yolo::load(&PathBuf::from(arg), cfg)?)
         }
         "oracle" => Arc::new(oracle::OracleDetector::from_spec(arg)?),
-        other => bail!("unknown detector `{other}` (expected centernet, yolo or oracle)"),
+        "vlm" => Arc::new(VlmBoxes),
+        other => bail!("unknown detector `{other}` (expected centernet, yolo, oracle or vlm)"),
     })
 }
 

@@ -1,6 +1,7 @@
 //! The VLM side of the agent: an OpenAI-compatible chat client, tolerant JSON reply
 //! parsing, and the prompt templates.
 
+pub mod boxes;
 pub mod budget;
 pub mod client;
 pub mod config;

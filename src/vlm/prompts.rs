@@ -7,6 +7,7 @@
 //! Each task/feedback template starts with a marker line (see [`markers`]) so that a reader
 //! of a conversation (the oracle VLM, a trace viewer) can tell which prompt it is.
 
+pub use super::boxes::BoxFormat;
 use std::collections::BTreeSet;
 use std::path::Path;
 
@@ -27,6 +28,12 @@ pub mod markers {
     pub const OBJECT_ID_INVALID: &str = "Feedback: object id not valid";
     /// Feedback: the reply could not be parsed.
     pub const UNPARSABLE: &str = "Feedback: reply not readable";
+    /// Set-of-marks selection request (pick a marked region's id).
+    pub const MARKS: &str = "Task: mark selection";
+    /// Request for the target's 2D box (`detector = "vlm"`).
+    pub const BOX: &str = "Task: object box";
+    /// Feedback: the box is outside the frame, degenerate or unreadable.
+    pub const BOX_INVALID: &str = "Feedback: box not valid";
 }
 
 /// The kinds of template, with their file names and allowed placeholders.
@@ -48,11 +55,17 @@ pub enum TemplateKind {
     FeedbackObjectIdInvalid,
     /// Feedback: reply could not be parsed.
     FeedbackUnparsable,
+    /// Set-of-marks selection (sent with the frame and its marked candidates).
+    MarkSelection,
+    /// Request for the target's 2D box in the chosen frame.
+    BoxRequest,
+    /// Feedback: the box cannot be used.
+    FeedbackBoxInvalid,
 }
 
 impl TemplateKind {
     /// All kinds.
-    pub const ALL: [TemplateKind; 8] = [
+    pub const ALL: [TemplateKind; 11] = [
         Self::QueryAnalysis,
         Self::GroundingSystem,
         Self::GroundingInput,
@@ -61,6 +74,9 @@ impl TemplateKind {
         Self::FeedbackObjectNotExisting,
         Self::FeedbackObjectIdInvalid,
         Self::FeedbackUnparsable,
+        Self::MarkSelection,
+        Self::BoxRequest,
+        Self::FeedbackBoxInvalid,
     ];
 
     /// File name inside the prompts directory.
@@ -74,6 +90,9 @@ impl TemplateKind {
             Self::FeedbackObjectNotExisting => "feedback_object_not_existing.txt",
             Self::FeedbackObjectIdInvalid => "feedback_object_id_invalid.txt",
             Self::FeedbackUnparsable => "feedback_unparsable.txt",
+            Self::MarkSelection => "mark_selection.txt",
+            Self::BoxRequest => "box_request.txt",
+            Self::FeedbackBoxInvalid => "feedback_box_invalid.txt",
         }
     }
 
@@ -104,6 +123,25 @@ impl TemplateKind {
             Self::FeedbackObjectNotExisting => &["image_id", "target_class"],
             Self::FeedbackObjectIdInvalid => &["object_id", "valid_ids"],
             Self::FeedbackUnparsable => &["expected_keys"],
+            Self::MarkSelection => &[
+                "query",
+                "target_class",
+                "image_id",
+                "width",
+                "height",
+                "num_candidates",
+                "candidates",
+            ],
+            Self::BoxRequest => &[
+                "query",
+                "target_class",
+                "image_id",
+                "width",
+                "height",
+                "box_format",
+                "box_format_help",
+            ],
+            Self::FeedbackBoxInvalid => &["reason", "box_format"],
         }
     }
 
@@ -121,6 +159,9 @@ impl TemplateKind {
                 include_str!("../../prompts/feedback_object_id_invalid.txt")
             }
             Self::FeedbackUnparsable => include_str!("../../prompts/feedback_unparsable.txt"),
+            Self::MarkSelection => include_str!("../../prompts/mark_selection.txt"),
+            Self::BoxRequest => include_str!("../../prompts/box_request.txt"),
+            Self::FeedbackBoxInvalid => include_str!("../../prompts/feedback_box_invalid.txt"),
         }
     }
 }
@@ -265,6 +306,8 @@ pub enum ReplyKind {
     Grounding,
     /// Instance selection reply.
     Instance,
+    /// Box request reply.
+    Box,
 }
 
 /// The loaded templates.
@@ -361,6 +404,15 @@ impl Prompts {
 
     /// Instance selection message (attach the annotated frame).
     pub fn instance_selection(&self, s: &InstanceInput<'_>) -> String {
+        self.selection(TemplateKind::InstanceSelection, s)
+    }
+
+    /// Set-of-marks selection message (attach the frame with its marked regions).
+    pub fn mark_selection(&self, s: &InstanceInput<'_>) -> String {
+        self.selection(TemplateKind::MarkSelection, s)
+    }
+
+    fn selection(&self, kind: TemplateKind, s: &InstanceInput<'_>) -> String {
         let candidates = s
             .candidates
             .iter()
@@ -374,7 +426,7 @@ impl Prompts {
             .collect::<Vec<_>>()
             .join("\n");
         self.render(
-            TemplateKind::InstanceSelection,
+            kind,
             &[
                 ("query", one_line(s.query)),
                 ("target_class", one_line(s.target_class)),
@@ -383,6 +435,41 @@ impl Prompts {
                 ("height", s.height.to_string()),
                 ("num_candidates", s.candidates.len().to_string()),
                 ("candidates", candidates),
+            ],
+        )
+    }
+
+    /// Request for the target's box in frame `image_id` of `width` x `height` pixels, in
+    /// the coordinates `format` names.
+    pub fn box_request(
+        &self,
+        query: &str,
+        target_class: &str,
+        image_id: u32,
+        (width, height): (u32, u32),
+        format: BoxFormat,
+    ) -> String {
+        self.render(
+            TemplateKind::BoxRequest,
+            &[
+                ("query", one_line(query)),
+                ("target_class", one_line(target_class)),
+                ("image_id", format_image_id(image_id)),
+                ("width", width.to_string()),
+                ("height", height.to_string()),
+                ("box_format", format.name().to_string()),
+                ("box_format_help", format.help(width, height)),
+            ],
+        )
+    }
+
+    /// Feedback: the box cannot be used, for `reason`.
+    pub fn feedback_box_invalid(&self, reason: &str, format: BoxFormat) -> String {
+        self.render(
+            TemplateKind::FeedbackBoxInvalid,
+            &[
+                ("reason", one_line(reason)),
+                ("box_format", format.name().to_string()),
             ],
         )
     }
@@ -427,6 +514,7 @@ impl Prompts {
             ReplyKind::QueryAnalysis => r#""target_class", "attributes" and "conditions""#,
             ReplyKind::Grounding => r#""reasoning", "target_image_id" and "reference_image_ids""#,
             ReplyKind::Instance => r#""reasoning" and "object_id""#,
+            ReplyKind::Box => r#""reasoning" and "bbox_2d""#,
         };
         self.render(
             TemplateKind::FeedbackUnparsable,

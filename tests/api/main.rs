@@ -4,6 +4,7 @@
 //! and cancellation.
 
 mod helpers;
+mod hostile;
 mod jobs;
 mod openapi;
 mod restart;

@@ -140,7 +140,7 @@ enum Colour {
 /// of the sum) differ by at most `tol / 765` in sum, and the brightness by at most a
 /// factor of 4 (a face turned from the light). Near-black colours (sum under 45) carry no
 /// reliable hue: they match each other.
-fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
+pub(crate) fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
     let (sm, sc) = (
         mid.iter().sum::<f64>(),
         c.iter().map(|&v| f64::from(v)).sum::<f64>(),

@@ -1,0 +1,109 @@
+//! Set-of-marks selection (ours): the class-agnostic candidates of the chosen image, found
+//! at indexing from the scan itself (`vision::candidates`), are drawn as numbered regions
+//! and the VLM picks the one the query describes, with the same feedback rules as instance
+//! selection. A scene indexed before candidates existed gets them computed here.
+
+use image::RgbImage;
+use serde_json::json;
+use std::time::Instant;
+
+use super::grounding::Conversation;
+use super::instance::{self, SelectKind};
+use super::proposal::{not_here, BoxSource, Outcome};
+use super::{step, VlmGrounder};
+use crate::geometry::estimate_room;
+use crate::jobs::{JobContext, JobFailure};
+use crate::vision::candidates::frame_candidates;
+use crate::vision::Detection;
+use crate::vlm::json::QueryAnalysis;
+use crate::vlm::CallBudget;
+
+/// The candidates of frame `idx`: from the index, else computed now.
+async fn candidates_of(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    idx: usize,
+    image: &RgbImage,
+) -> Result<(Vec<Detection>, &'static str), JobFailure> {
+    let cached = ctx
+        .store
+        .frame_candidates(&ctx.scene.id, idx)
+        .await
+        .map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
+    if let Some(c) = cached {
+        return Ok((c, "index"));
+    }
+    let (scene, img) = (ctx.scene.clone(), image.clone());
+    let (cp, lp) = (g.params.candidates.clone(), g.params.geometry.layout.clone());
+    let found = tokio::task::spawn_blocking(move || {
+        let frames: Vec<_> = scene
+            .usable_frames()
+            .map(|f| (&f.camera, f.depth.as_ref()))
+            .collect();
+        let room = lp.enabled.then(|| estimate_room(&frames, &lp)).flatten();
+        let f = &scene.frames[idx];
+        frame_candidates(&f.camera, &f.depth, &img, room.as_ref(), &lp, &cp)
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("candidate task failed: {e}")))?;
+    let dets = found
+        .into_iter()
+        .map(|c| Detection {
+            label: c.kind.label().to_string(),
+            score: 1.0,
+            bbox: c.bbox,
+        })
+        .collect();
+    Ok((dets, "computed"))
+}
+
+/// Offer the candidates of image `idx` as marks; `why` says why the detector did not give
+/// the box.
+#[allow(clippy::too_many_arguments)]
+pub async fn select(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    budget: &CallBudget,
+    conv: &mut Conversation<'_>,
+    analysis: &QueryAnalysis,
+    idx: usize,
+    image: &RgbImage,
+    why: &str,
+) -> Result<Outcome, JobFailure> {
+    let t = Instant::now();
+    let (cands, source) = candidates_of(g, ctx, idx, image).await?;
+    let listed: Vec<_> = cands
+        .iter()
+        .enumerate()
+        .map(|(i, c)| json!({"id": i, "box": c.bbox, "kind": c.label}))
+        .collect();
+    step(
+        ctx,
+        "candidates",
+        json!({"image_id": format!("{idx:05}"), "why": why}),
+        json!({"image_id": format!("{idx:05}"), "frame": ctx.scene.frames[idx].name, "from": source, "candidates": listed}),
+        t,
+    )
+    .await;
+    if cands.is_empty() {
+        return Ok(not_here(
+            g,
+            idx,
+            &analysis.target_class,
+            format!("no candidate region in image {idx:05}"),
+        ));
+    }
+    let bbox = instance::select(
+        g,
+        ctx,
+        budget,
+        conv,
+        analysis,
+        idx,
+        image,
+        &cands,
+        SelectKind::Marks,
+    )
+    .await?;
+    Ok(Outcome::Box(bbox, BoxSource::Marks))
+}

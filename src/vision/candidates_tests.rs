@@ -1,0 +1,215 @@
+//! Rendered rooms: candidates must exist for objects no detector knows, and must not be
+//! the room itself.
+
+use super::*;
+use crate::geometry::camera::look_at_pose;
+use crate::geometry::Intrinsics;
+use nalgebra::{Matrix4, Vector3};
+
+/// A box with a colour and an instance id (0 = room structure).
+struct Part {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    rgb: [u8; 3],
+    id: u16,
+}
+
+fn part(lo: [f64; 3], hi: [f64; 3], rgb: [u8; 3], id: u16) -> Part {
+    Part { lo, hi, rgb, id }
+}
+
+/// A 4 x 4 x 2.5 m room: grey walls, brown floor, white ceiling.
+fn room() -> Vec<Part> {
+    let wall = [150, 150, 150];
+    vec![
+        part([-0.1, -0.1, -0.1], [4.1, 4.1, 0.0], [120, 90, 60], 0),
+        part([-0.1, -0.1, 2.5], [4.1, 4.1, 2.6], [240, 240, 240], 0),
+        part([-0.1, -0.1, 0.0], [0.0, 4.1, 2.5], wall, 0),
+        part([4.0, -0.1, 0.0], [4.1, 4.1, 2.5], wall, 0),
+        part([-0.1, -0.1, 0.0], [4.1, 0.0, 2.5], wall, 0),
+        part([-0.1, 4.0, 0.0], [4.1, 4.1, 2.5], wall, 0),
+    ]
+}
+
+fn layout() -> RoomLayout {
+    RoomLayout {
+        angle_deg: 0.0,
+        u: [Some(0.0), Some(4.0)],
+        v: [Some(0.0), Some(4.0)],
+        faced: [true; 4],
+        floor: Some(0.0),
+        ceiling: Some(2.5),
+        range: 6.0,
+        reach: [[0.0, 4.0], [0.0, 4.0], [0.0, 2.5]],
+        points: 0,
+    }
+}
+
+fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
+    let color = Intrinsics {
+        fx: 250.0,
+        fy: 250.0,
+        cx: 159.5,
+        cy: 119.5,
+        width: 320,
+        height: 240,
+    };
+    FrameCamera {
+        color,
+        depth: None,
+        depth_size: (320, 240),
+        pose: look_at_pose(eye.into(), target.into(), Vector3::z()),
+        align: Matrix4::identity(),
+    }
+}
+
+/// Ray-cast depth (mm), colour and instance ids of `parts` (colour and depth share K).
+fn render(cam: &FrameCamera, parts: &[Part]) -> (DepthMap, RgbImage, Vec<u16>) {
+    let (w, h) = (cam.color.width, cam.color.height);
+    let m = cam.cam_to_out();
+    let o = transform_point(&m, &Point3::origin());
+    let mut depth = vec![0u16; (w * h) as usize];
+    let mut ids = vec![0u16; (w * h) as usize];
+    let mut img = RgbImage::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let d = transform_point(&m, &cam.color.unproject(f64::from(x), f64::from(y), 1.0)) - o;
+            let mut best: Option<(f64, &Part)> = None;
+            for p in parts {
+                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+                for k in 0..3 {
+                    if d[k].abs() < 1e-12 {
+                        if o[k] < p.lo[k] || o[k] > p.hi[k] {
+                            t1 = -1.0;
+                        }
+                        continue;
+                    }
+                    let (a, b) = ((p.lo[k] - o[k]) / d[k], (p.hi[k] - o[k]) / d[k]);
+                    t0 = t0.max(a.min(b));
+                    t1 = t1.min(a.max(b));
+                }
+                if t0 <= t1 && t0 > 0.0 && best.is_none_or(|(bt, _)| t0 < bt) {
+                    best = Some((t0, p));
+                }
+            }
+            if let Some((t, p)) = best {
+                let i = (y * w + x) as usize;
+                depth[i] = (t * 1000.0).round() as u16;
+                ids[i] = p.id;
+                img.put_pixel(x, y, image::Rgb(p.rgb));
+            }
+        }
+    }
+    (DepthMap::new(w, h, depth), img, ids)
+}
+
+/// The box of instance `id`'s pixels.
+fn truth_box(ids: &[u16], w: u32, id: u16) -> [f32; 4] {
+    let mut b = [f32::MAX, f32::MAX, 0.0f32, 0.0f32];
+    for (i, &v) in ids.iter().enumerate() {
+        if v == id {
+            let (x, y) = ((i as u32 % w) as f32, (i as u32 / w) as f32);
+            b = [
+                b[0].min(x),
+                b[1].min(y),
+                b[2].max(x + 1.0),
+                b[3].max(y + 1.0),
+            ];
+        }
+    }
+    b
+}
+
+fn best_iou(cands: &[Candidate], truth: &[f32; 4]) -> f64 {
+    cands
+        .iter()
+        .map(|c| box_iou(&c.bbox, truth))
+        .fold(0.0, f64::max)
+}
+
+fn run(cam: &FrameCamera, parts: &[Part]) -> (Vec<Candidate>, Vec<u16>) {
+    let (depth, img, ids) = render(cam, parts);
+    let c = frame_candidates(
+        cam,
+        &depth,
+        &img,
+        Some(&layout()),
+        &LayoutParams::default(),
+        &CandidateParams::default(),
+    );
+    (c, ids)
+}
+
+#[test]
+fn a_lamp_before_a_wall_is_a_candidate_and_the_wall_is_not() {
+    let mut parts = room();
+    // Floor lamp 20 cm before the wall at y = 4: thin pole, red shade.
+    parts.push(part([1.97, 3.67, 0.0], [2.03, 3.73, 1.3], [40, 40, 40], 7));
+    parts.push(part([1.8, 3.5, 1.3], [2.2, 3.9, 1.6], [200, 30, 30], 7));
+    let cam = camera([2.0, 0.8, 1.4], [2.0, 4.0, 1.0]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 7);
+    let iou = best_iou(&cands, &truth);
+    assert!(
+        iou > 0.7,
+        "best IoU {iou:.2} with the lamp {truth:?}: {cands:?}"
+    );
+    // Nothing covers most of the image (the wall, the floor).
+    for c in &cands {
+        let area = f64::from((c.bbox[2] - c.bbox[0]) * (c.bbox[3] - c.bbox[1]));
+        assert!(area < 0.5 * 320.0 * 240.0, "a candidate is the room: {c:?}");
+    }
+}
+
+#[test]
+fn two_touching_objects_of_different_colours_are_separate_candidates() {
+    let mut parts = room();
+    // A bed with two pillows touching each other, blue and yellow.
+    parts.push(part([1.0, 2.0, 0.0], [3.0, 4.0, 0.5], [230, 230, 230], 1));
+    parts.push(part([1.2, 3.4, 0.5], [1.95, 3.9, 0.65], [40, 60, 200], 2));
+    parts.push(part([1.95, 3.4, 0.5], [2.7, 3.9, 0.65], [220, 200, 30], 3));
+    let cam = camera([2.0, 1.0, 1.6], [2.0, 3.5, 0.5]);
+    let (cands, ids) = run(&cam, &parts);
+    for id in [1, 2, 3] {
+        let truth = truth_box(&ids, 320, id);
+        let iou = best_iou(&cands, &truth);
+        assert!(
+            iou > 0.6,
+            "object {id}: best IoU {iou:.2} with {truth:?}: {cands:?}"
+        );
+    }
+}
+
+#[test]
+fn a_picture_on_a_wall_is_a_candidate() {
+    let mut parts = room();
+    // A 60 x 40 cm picture 2 cm proud of the wall at y = 4, green.
+    parts.push(part([1.7, 3.98, 1.2], [2.3, 4.0, 1.6], [40, 160, 60], 9));
+    let cam = camera([2.0, 1.5, 1.4], [2.0, 4.0, 1.4]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 9);
+    let c = cands
+        .iter()
+        .max_by(|a, b| box_iou(&a.bbox, &truth).total_cmp(&box_iou(&b.bbox, &truth)))
+        .expect("some candidate");
+    assert!(
+        box_iou(&c.bbox, &truth) > 0.7 && c.kind == CandidateKind::OnWall,
+        "{c:?} against {truth:?}"
+    );
+}
+
+#[test]
+fn without_depth_or_room_nothing_is_proposed() {
+    let cam = camera([2.0, 1.0, 1.4], [2.0, 4.0, 1.4]);
+    let depth = DepthMap::new(320, 240, vec![0; 320 * 240]);
+    let img = RgbImage::new(320, 240);
+    let c = frame_candidates(
+        &cam,
+        &depth,
+        &img,
+        None,
+        &LayoutParams::default(),
+        &CandidateParams::default(),
+    );
+    assert!(c.is_empty(), "{c:?}");
+}
