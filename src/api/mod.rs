@@ -1,5 +1,6 @@
 //! HTTP API: axum routes, problem+json errors, OpenAPI. Knows nothing of geometry.
 
+pub mod capture;
 pub mod error;
 pub mod health;
 pub mod jobs;

@@ -1,13 +1,14 @@
 //! `/v1/scenes`: upload, list, get, delete.
 
 use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::IntoResponse;
 use futures::StreamExt;
 use serde::Serialize;
 use tokio::io::AsyncWriteExt;
 
+use super::capture::CaptureParams;
 use super::{ApiError, AppState};
 use crate::jobs::ingest::{prepare_scene, Cleanup};
 use crate::scene::archive::Limits;
@@ -18,9 +19,11 @@ pub struct SceneList {
     pub scenes: Vec<SceneRecord>,
 }
 
-/// Upload a scene archive (tar, tar.gz or zip of one FORMATS §1 scene directory).
-#[utoipa::path(post, path = "/v1/scenes", tag = "scenes",
-    request_body(content = Vec<u8>, description = "Scene archive", content_type = "application/x-tar"),
+/// Upload a scene: a tar, tar.gz or zip archive of one FORMATS §1 scene directory or of
+/// a capture (`.sens`, TUM RGB-D, nerfstudio, ARKitScenes raw; detected or named with
+/// `format`), or a raw ScanNet `.sens` body (`Content-Type: application/octet-stream`).
+#[utoipa::path(post, path = "/v1/scenes", tag = "scenes", params(CaptureParams),
+    request_body(content = Vec<u8>, description = "Scene archive or raw .sens", content_type = "application/x-tar"),
     responses(
         (status = 201, body = SceneRecord, headers(("Location" = String, description = "URL of the new scene"))),
         (status = 400, body = super::Problem, content_type = "application/problem+json"),
@@ -29,9 +32,11 @@ pub struct SceneList {
         (status = 422, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn upload(
     State(state): State<AppState>,
+    Query(params): Query<CaptureParams>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<impl IntoResponse, ApiError> {
+    let capture = params.to_capture()?;
     let limit = state.cfg.max_upload_bytes;
     let too_large = || {
         ApiError::new(
@@ -96,7 +101,14 @@ pub async fn upload(
     let scene_dir = state.jobs.scene_dir(&id);
     let (up, sd) = (upload_path.clone(), scene_dir.clone());
     let scene = tokio::task::spawn_blocking(move || {
-        prepare_scene(&up, content_type.as_deref(), &work_dir, &sd, limits)
+        prepare_scene(
+            &up,
+            content_type.as_deref(),
+            &work_dir,
+            &sd,
+            limits,
+            &capture,
+        )
     })
     .await
     .map_err(|e| ApiError::internal(format!("import task failed: {e}")))??;

@@ -7,10 +7,10 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
+use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
 use crate::jobs::JobSystem;
 use crate::scene::FrameData;
 use crate::store::Store;
-use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
 use crate::vision::candidates::{frame_candidates, CandidateParams};
 use crate::vision::{DetectInput, Detection, Detector};
 
@@ -160,7 +160,10 @@ async fn index_scene(
         Some(setup) if setup.layout.enabled => {
             let (frames, lp) = (usable.clone(), setup.layout.clone());
             tokio::task::spawn_blocking(move || {
-                let pairs: Vec<_> = frames.iter().map(|f| (&f.camera, f.depth.as_ref())).collect();
+                let pairs: Vec<_> = frames
+                    .iter()
+                    .map(|f| (&f.camera, f.depth.as_ref()))
+                    .collect();
                 estimate_room(&pairs, &lp).map(Arc::new)
             })
             .await?

@@ -3,6 +3,7 @@
 
 pub mod archive;
 pub mod format;
+pub mod formats;
 pub mod import;
 pub mod model;
 

@@ -78,7 +78,11 @@ impl Store {
         )
         .bind(id)
         .bind(&scene.name)
-        .bind(scene.layout.as_str())
+        .bind(
+            scene
+                .format
+                .map_or(scene.layout.as_str(), |f| f.as_str()),
+        )
         .bind(status)
         .bind(scene.color.width as i64)
         .bind(scene.color.height as i64)

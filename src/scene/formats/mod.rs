@@ -69,6 +69,8 @@ pub struct FormatOptions {
     pub first_name: u64,
     /// Cap on the bytes the conversion writes.
     pub max_bytes: u64,
+    /// Cap on the pixels of one image (`max_image_pixels`).
+    pub max_pixels: u64,
 }
 
 impl Default for FormatOptions {
@@ -80,6 +82,7 @@ impl Default for FormatOptions {
             depth_unit: 0.001,
             first_name: 0,
             max_bytes: u64::MAX,
+            max_pixels: 100_000_000,
         }
     }
 }
@@ -114,6 +117,17 @@ pub fn detect(dir: &Path) -> Option<(CaptureFormat, PathBuf)> {
         here = subdirs[0].clone();
     }
     None
+}
+
+/// The folder itself, or its single sub-folder when it holds nothing else.
+pub fn single_folder(dir: &Path) -> PathBuf {
+    let entries: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|rd| rd.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    if entries.len() == 1 && entries[0].is_dir() {
+        return entries[0].clone();
+    }
+    dir.to_path_buf()
 }
 
 fn detect_in(dir: &Path) -> Option<CaptureFormat> {
@@ -245,8 +259,15 @@ impl SceneOut {
         self.write(&format!("pose/{name}.txt"), matrix_text(m).as_bytes())
     }
 
-    pub fn intrinsics(&mut self, color: &Matrix4<f64>, depth: Option<&Matrix4<f64>>) -> Result<(), SceneError> {
-        self.write("intrinsic/intrinsic_color.txt", matrix_text(color).as_bytes())?;
+    pub fn intrinsics(
+        &mut self,
+        color: &Matrix4<f64>,
+        depth: Option<&Matrix4<f64>>,
+    ) -> Result<(), SceneError> {
+        self.write(
+            "intrinsic/intrinsic_color.txt",
+            matrix_text(color).as_bytes(),
+        )?;
         if let Some(d) = depth {
             self.write("intrinsic/intrinsic_depth.txt", matrix_text(d).as_bytes())?;
         }
@@ -353,14 +374,7 @@ pub fn interpolate(poses: &[TimedPose], t: f64, max_gap: f64) -> Option<Matrix4<
     let s = (t - a.t) / (b.t - a.t);
     let rot = a.rot.try_slerp(&b.rot, s, 1e-9).unwrap_or(a.rot);
     let pos = a.pos + (b.pos - a.pos) * s;
-    Some(
-        TimedPose {
-            t,
-            rot,
-            pos,
-        }
-        .matrix(),
-    )
+    Some(TimedPose { t, rot, pos }.matrix())
 }
 
 /// Is the top-left 3x3 a rotation (orthonormal, determinant +1) within `tol`?
@@ -399,13 +413,17 @@ pub fn finite(tok: &str, what: &str) -> Result<f64, SceneError> {
 }
 
 /// Decode a 16-bit depth PNG into raw values.
-pub fn read_depth_u16(path: &Path, what: &str) -> Result<(u32, u32, Vec<u16>), SceneError> {
+pub fn read_depth_u16(
+    path: &Path,
+    what: &str,
+    max_pixels: u64,
+) -> Result<(u32, u32, Vec<u16>), SceneError> {
     if !path.is_file() {
         return Err(SceneError::Malformed(format!(
             "{what}: the depth image is missing; every frame needs one"
         )));
     }
-    let d = super::import::read_depth_png(path, what)?;
+    let d = super::import::read_depth_png(path, what, max_pixels)?;
     Ok((d.width, d.height, d.data))
 }
 
@@ -418,7 +436,10 @@ mod tests {
         let b = Path::new("/x");
         assert!(safe_join(b, "a/../../etc", "t").is_err());
         assert!(safe_join(b, "/etc/passwd", "t").is_err());
-        assert_eq!(safe_join(b, "./a/b.png", "t").unwrap(), Path::new("/x/a/b.png"));
+        assert_eq!(
+            safe_join(b, "./a/b.png", "t").unwrap(),
+            Path::new("/x/a/b.png")
+        );
         assert!(safe_join(b, "a/../b.png", "t").is_ok());
     }
 
@@ -435,7 +456,10 @@ mod tests {
         let yaw = m[(1, 0)].atan2(m[(0, 0)]);
         assert!((yaw - 0.1).abs() < 1e-9, "{yaw}");
         assert!(interpolate(&poses, 0.5, 0.1).is_none(), "gap too long");
-        assert!(interpolate(&poses, -0.01, 0.1).is_none(), "before the first");
+        assert!(
+            interpolate(&poses, -0.01, 0.1).is_none(),
+            "before the first"
+        );
         assert!(interpolate(&poses, 1.0, 0.1).is_some(), "exactly the last");
     }
 }

@@ -81,9 +81,7 @@ impl Reader {
         if self.pos + buf.len() as u64 > self.len {
             return Err(self.truncated(what));
         }
-        self.r
-            .read_exact(buf)
-            .map_err(|_| self.truncated(what))?;
+        self.r.read_exact(buf).map_err(|_| self.truncated(what))?;
         self.pos += buf.len() as u64;
         Ok(())
     }
@@ -176,7 +174,10 @@ pub fn convert(path: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<
     }
     let sensor_len = r.u64("the sensor name length")?;
     if sensor_len > 4096 {
-        return Err(bad(&name, "sensor name longer than 4096 bytes; not a .sens file?"));
+        return Err(bad(
+            &name,
+            "sensor name longer than 4096 bytes; not a .sens file?",
+        ));
     }
     r.skip(sensor_len, "the sensor name")?;
     let k_color = r.mat("the colour intrinsics")?;
@@ -199,14 +200,22 @@ pub fn convert(path: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<
     }
     let (cw, ch) = (r.u32("the colour width")?, r.u32("the colour height")?);
     let (dw, dh) = (r.u32("the depth width")?, r.u32("the depth height")?);
-    for (what, v) in [("colour width", cw), ("colour height", ch), ("depth width", dw), ("depth height", dh)] {
+    for (what, v) in [
+        ("colour width", cw),
+        ("colour height", ch),
+        ("depth width", dw),
+        ("depth height", dh),
+    ] {
         if v == 0 || v > MAX_SIDE {
             return Err(bad(&name, &format!("{what} {v} is outside 1..={MAX_SIDE}")));
         }
     }
     let shift = r.f32("the depth shift")? as f64;
     if !(shift.is_finite() && shift > 0.0) {
-        return Err(bad(&name, "the depth shift must be a positive number (units per metre)"));
+        return Err(bad(
+            &name,
+            "the depth shift must be a positive number (units per metre)",
+        ));
     }
     let frames = r.u64("the frame count")?;
     // A frame takes at least 96 bytes (pose, timestamps, sizes).
@@ -238,7 +247,12 @@ pub fn convert(path: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<
             ZlibDecoder::new(raw.as_slice())
                 .take(depth_bytes + 1)
                 .read_to_end(&mut d)
-                .map_err(|e| bad(&name, &format!("frame {i} depth is not valid zlib data: {e}")))?;
+                .map_err(|e| {
+                    bad(
+                        &name,
+                        &format!("frame {i} depth is not valid zlib data: {e}"),
+                    )
+                })?;
             d
         } else {
             raw

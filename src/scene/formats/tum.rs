@@ -30,7 +30,12 @@ pub const PAIR_TOLERANCE: f64 = 0.02;
 /// Depth units per metre.
 pub const DEPTH_SCALE: f64 = 5000.0;
 
-fn timestamps_increase(file: &str, line: usize, prev: Option<f64>, t: f64) -> Result<(), SceneError> {
+fn timestamps_increase(
+    file: &str,
+    line: usize,
+    prev: Option<f64>,
+    t: f64,
+) -> Result<(), SceneError> {
     if let Some(p) = prev {
         if t <= p {
             return Err(SceneError::Malformed(format!(
@@ -153,9 +158,14 @@ pub fn convert(dir: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<u
             )));
         }
         let depth_file = safe_join(dir, depth_path, "depth.txt")?;
-        let (dw, dh, raw) = read_depth_u16(&depth_file, &format!("depth.txt: {depth_path}"))?;
-        let (cw, chh) = image::image_dimensions(&color_file)
-            .map_err(|e| SceneError::BadImage(format!("rgb.txt: {rgb_path}: unreadable image: {e}")))?;
+        let (dw, dh, raw) = read_depth_u16(
+            &depth_file,
+            &format!("depth.txt: {depth_path}"),
+            opts.max_pixels,
+        )?;
+        let (cw, chh) = image::image_dimensions(&color_file).map_err(|e| {
+            SceneError::BadImage(format!("rgb.txt: {rgb_path}: unreadable image: {e}"))
+        })?;
         if (cw, chh) != (dw, dh) {
             return Err(SceneError::DepthSize(format!(
                 "{depth_path} is {dw}x{dh} but {rgb_path} is {cw}x{chh}; TUM colour and depth must be registered at one size"
