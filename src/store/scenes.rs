@@ -42,6 +42,8 @@ pub struct SceneRecord {
     pub index: IndexProgress,
     pub error: Option<String>,
     pub created_at: String,
+    /// Bumped on every change of the scene's frames (appended or removed).
+    pub revision: i64,
 }
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -135,6 +137,7 @@ impl Store {
             },
             error: row.try_get("error")?,
             created_at: row.try_get("created_at")?,
+            revision: row.try_get("revision")?,
         })
     }
 
@@ -427,7 +430,7 @@ impl Store {
         let dw: i64 = s.try_get("depth_width")?;
         let dh: i64 = s.try_get("depth_height")?;
         let rows = sqlx::query(
-            "SELECT idx, name, pose, usable, depth FROM frames WHERE scene_id = ? ORDER BY idx",
+            "SELECT idx, name, pose, usable, depth, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? ORDER BY idx",
         )
         .bind(id)
         .fetch_all(&self.pool)
@@ -440,6 +443,7 @@ impl Store {
                 r.try_get::<Vec<u8>, _>("pose")?,
                 r.try_get::<i64, _>("usable")? != 0,
                 r.try_get::<Vec<u8>, _>("depth")?,
+                r.try_get::<String, _>("file")?,
             ));
         }
         let scene_dir_owned = scene_dir.to_path_buf();
@@ -448,11 +452,11 @@ impl Store {
             use rayon::prelude::*;
             let scene_dir = scene_dir_owned;
             raw.into_par_iter()
-                .map(|(idx, name, pose, usable, depth)| {
+                .map(|(idx, name, pose, usable, depth, file)| {
                     let pose = pose_from_blob(&pose).ok_or_else(|| format!("frame {name} pose"))?;
                     let depth = decompress_depth(&depth, dw as u32, dh as u32)
                         .ok_or_else(|| format!("frame {name} depth"))?;
-                    let inst = scene_dir.join("instance").join(format!("{idx}.png"));
+                    let inst = scene_dir.join("instance").join(format!("{file}.png"));
                     Ok(FrameData {
                         idx: idx as usize,
                         name,
@@ -465,7 +469,7 @@ impl Store {
                             align: align_m,
                         },
                         depth: Arc::new(depth),
-                        color_path: scene_dir.join("color").join(format!("{idx}.jpg")),
+                        color_path: scene_dir.join("color").join(format!("{file}.jpg")),
                         instance_path: inst.is_file().then_some(inst),
                     })
                 })
