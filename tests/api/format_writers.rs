@@ -87,6 +87,16 @@ fn put_mat(out: &mut Vec<u8>, m: &Matrix4<f64>) {
 
 /// ScanNet `.sens` (SensorData version 4, JPEG colour, zlib depth).
 pub fn sens(scene: &SynthScene) -> Vec<u8> {
+    let mut out = sens_header(scene, scene.frames.len() as u64);
+    for i in 0..scene.frames.len() {
+        out.extend(sens_frame(scene, i));
+    }
+    out.extend_from_slice(&0u64.to_le_bytes()); // no IMU frames
+    out
+}
+
+/// The `.sens` header announcing `frames` frames.
+pub fn sens_header(scene: &SynthScene, frames: u64) -> Vec<u8> {
     let mut out = Vec::new();
     out.extend_from_slice(&4u32.to_le_bytes());
     let sensor = b"StructureSensor";
@@ -104,23 +114,27 @@ pub fn sens(scene: &SynthScene) -> Vec<u8> {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.extend_from_slice(&1000f32.to_le_bytes());
-    out.extend_from_slice(&(scene.frames.len() as u64).to_le_bytes());
-    for (i, f) in scene.frames.iter().enumerate() {
-        put_mat(&mut out, &pose(scene, i));
-        out.extend_from_slice(&(i as u64 * 33_333).to_le_bytes());
-        out.extend_from_slice(&(i as u64 * 33_333).to_le_bytes());
-        let jpg = read(scene, &format!("color/{}.jpg", f.name));
-        let (_, _, mm) = depth_mm(scene, &f.name);
-        let raw: Vec<u8> = mm.iter().flat_map(|v| v.to_le_bytes()).collect();
-        let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
-        z.write_all(&raw).unwrap();
-        let zd = z.finish().unwrap();
-        out.extend_from_slice(&(jpg.len() as u64).to_le_bytes());
-        out.extend_from_slice(&(zd.len() as u64).to_le_bytes());
-        out.extend_from_slice(&jpg);
-        out.extend_from_slice(&zd);
-    }
-    out.extend_from_slice(&0u64.to_le_bytes()); // no IMU frames
+    out.extend_from_slice(&frames.to_le_bytes());
+    out
+}
+
+/// One `.sens` frame record (pose, timestamps, sizes, JPEG, zlib depth) of frame `i`.
+pub fn sens_frame(scene: &SynthScene, i: usize) -> Vec<u8> {
+    let mut out = Vec::new();
+    let f = &scene.frames[i];
+    put_mat(&mut out, &pose(scene, i));
+    out.extend_from_slice(&(i as u64 * 33_333).to_le_bytes());
+    out.extend_from_slice(&(i as u64 * 33_333).to_le_bytes());
+    let jpg = read(scene, &format!("color/{}.jpg", f.name));
+    let (_, _, mm) = depth_mm(scene, &f.name);
+    let raw: Vec<u8> = mm.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+    z.write_all(&raw).unwrap();
+    let zd = z.finish().unwrap();
+    out.extend_from_slice(&(jpg.len() as u64).to_le_bytes());
+    out.extend_from_slice(&(zd.len() as u64).to_le_bytes());
+    out.extend_from_slice(&jpg);
+    out.extend_from_slice(&zd);
     out
 }
 

@@ -5,6 +5,7 @@
 
 mod format_writers;
 mod formats;
+mod formats_bench;
 mod frames;
 mod helpers;
 mod hostile;
