@@ -117,7 +117,7 @@ pub fn convert(dir: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<u
                 "lowres_depth/{stem}.png is missing; every lowres_wide frame needs its depth image"
             )));
         }
-        if pos as u64 % opts.every != 0 {
+        if !(pos as u64).is_multiple_of(opts.every) {
             continue;
         }
         let kfile = format!("lowres_wide_intrinsics/{stem}.pincam");

@@ -137,7 +137,7 @@ pub fn convert(dir: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<u
             })?;
         let depth = safe_join(dir, depth_rel, &format!("{what}.depth_file_path"))?;
         let m = pose(f, i)?;
-        if pos as u64 % opts.every != 0 {
+        if !(pos as u64).is_multiple_of(opts.every) {
             continue;
         }
         if !color.is_file() {

@@ -234,7 +234,7 @@ pub fn convert(path: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<
         let _ts_depth = r.u64(&what("depth timestamp"))?;
         let color_size = r.u64(&what("colour size"))?;
         let depth_size = r.u64(&what("depth size"))?;
-        if i % opts.every != 0 {
+        if !i.is_multiple_of(opts.every) {
             r.skip(color_size, &what("colour"))?;
             r.skip(depth_size, &what("depth"))?;
             continue;

@@ -145,7 +145,7 @@ pub fn convert(dir: &Path, out: &mut SceneOut, opts: &FormatOptions) -> Result<u
         let Some((_, depth_path)) = best.filter(|d| (d.0 - t).abs() <= PAIR_TOLERANCE) else {
             continue;
         };
-        let keep = pos % opts.every == 0;
+        let keep = pos.is_multiple_of(opts.every);
         pos += 1;
         if !keep {
             continue;
