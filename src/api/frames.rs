@@ -206,6 +206,9 @@ pub async fn remove(
     if state.store.get_scene(&id).await?.is_none() {
         return Err(ApiError::not_found("scene", &id));
     }
+    // Forgotten before and after: no job can start from a cached copy that still holds
+    // the frame once its files go.
+    state.jobs.forget_scene(&id);
     match state.store.remove_frame_if_idle(&id, &name).await? {
         FrameRemoval::NoFrame => Err(ApiError::new(
             StatusCode::NOT_FOUND,

@@ -27,7 +27,7 @@ pub struct SceneRecord {
     pub name: String,
     /// `indexing`, `ready` or `failed`.
     pub status: String,
-    /// `scannet` (FORMATS §1a) or `posed` (§1b).
+    /// `scannet` (FORMATS §1a), `posed` (§1b), or the capture format it was converted from (`sens`, `tum`, `nerfstudio` or `arkitscenes`).
     pub layout: String,
     /// Number of frames.
     pub frames: i64,
