@@ -34,10 +34,7 @@ async fn candidates_of(
         return Ok((c, "index"));
     }
     let (scene, img) = (ctx.scene.clone(), image.clone());
-    let (cp, lp) = (
-        g.params.candidates.clone(),
-        g.params.geometry.layout.clone(),
-    );
+    let (cp, lp) = (g.params.candidates.clone(), g.params.geometry.layout.clone());
     let found = tokio::task::spawn_blocking(move || {
         let frames: Vec<_> = scene
             .usable_frames()

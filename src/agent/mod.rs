@@ -6,12 +6,12 @@
 pub mod grounding;
 pub mod instance;
 pub mod marks;
+pub mod proposal;
+pub mod vlm_box;
 pub mod preselect;
 pub mod projection;
-pub mod proposal;
 pub mod query_analysis;
 pub mod stitching;
-pub mod vlm_box;
 pub mod vlm_log;
 
 use futures::future::BoxFuture;

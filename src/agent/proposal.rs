@@ -65,17 +65,7 @@ pub async fn propose(
     }
     let Some(det_class) = &pre.detector_class else {
         if g.params.candidates.enabled {
-            return marks::select(
-                g,
-                ctx,
-                budget,
-                conv,
-                analysis,
-                idx,
-                image,
-                "the detector has no class for the target",
-            )
-            .await;
+            return marks::select(g, ctx, budget, conv, analysis, idx, image, "the detector has no class for the target").await;
         }
         return Err(JobFailure::new(
             "detector_cannot_see_class",
@@ -102,17 +92,7 @@ pub async fn propose(
     .await;
     match dets.len() {
         0 if g.params.candidates.enabled => {
-            marks::select(
-                g,
-                ctx,
-                budget,
-                conv,
-                analysis,
-                idx,
-                image,
-                "the detector found no target in the chosen image",
-            )
-            .await
+            marks::select(g, ctx, budget, conv, analysis, idx, image, "the detector found no target in the chosen image").await
         }
         0 => Ok(not_here(
             g,

@@ -38,20 +38,20 @@ pub async fn ask(
         .map_err(|e| JobFailure::new("annotation_failed", format!("{e:#}")))?;
     let url = ctx
         .trace
-        .artifact(
-            &format!("box_request_{idx:05}_{}.jpg", conv.rounds),
-            jpeg.clone(),
-        )
+        .artifact(&format!("box_request_{idx:05}_{}.jpg", conv.rounds), jpeg.clone())
         .await?;
-    let text = g
-        .prompts
-        .box_request(&ctx.query, &analysis.target_class, idx as u32, size, format);
+    let text = g.prompts.box_request(
+        &ctx.query,
+        &analysis.target_class,
+        idx as u32,
+        size,
+        format,
+    );
     conv.messages
         .push(Message::user_with_images(text, vec![ImageData::jpeg(jpeg)]));
     conv.image_urls.push(url.clone());
     let mut exchanges: Vec<Value> = Vec::new();
-    let inputs =
-        json!({"image_id": format!("{idx:05}"), "box_format": format.name(), "image": url});
+    let inputs = json!({"image_id": format!("{idx:05}"), "box_format": format.name(), "image": url});
     loop {
         let (reply, mut rec) = conv.ask(g, budget).await?;
         let (fb, why) = match parse_box(&reply, format, size) {
@@ -71,11 +71,7 @@ pub async fn ask(
                 .await;
                 return Ok(Outcome::Box(b, BoxSource::VlmBox));
             }
-            Ok(BoxAnswer {
-                bbox: None,
-                reasoning,
-                ..
-            }) => {
+            Ok(BoxAnswer { bbox: None, reasoning, .. }) => {
                 exchanges.push(rec);
                 step(
                     ctx,
@@ -96,23 +92,13 @@ pub async fn ask(
                 g.prompts.feedback_unparsable(ReplyKind::Box),
                 "unparsable reply".to_string(),
             ),
-            Err(e) => (
-                g.prompts.feedback_box_invalid(&e.to_string(), format),
-                e.to_string(),
-            ),
+            Err(e) => (g.prompts.feedback_box_invalid(&e.to_string(), format), e.to_string()),
         };
         rec["invalid"] = json!(why);
         rec["feedback"] = json!(fb);
         exchanges.push(rec);
         if let Err(e) = conv.feedback(g, fb, &why) {
-            step(
-                ctx,
-                "vlm_box",
-                inputs,
-                json!({"failed": true, "vlm": exchanges}),
-                t,
-            )
-            .await;
+            step(ctx, "vlm_box", inputs, json!({"failed": true, "vlm": exchanges}), t).await;
             return Err(e);
         }
     }

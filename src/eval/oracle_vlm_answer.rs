@@ -138,9 +138,9 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
     };
     if mode == Mode::Instance || mode == Mode::Box {
         let t = &task.text;
-        conv.box_format = t
-            .lines()
-            .find_map(|l| BoxFormat::parse(l.trim().strip_prefix("Box format:")?));
+        conv.box_format = t.lines().find_map(|l| {
+            BoxFormat::parse(l.trim().strip_prefix("Box format:")?)
+        });
         conv.frame = t.find("frame ").and_then(|i| {
             let head: String = t[i + 6..].chars().take(5).collect();
             five_digit_ids(&head).first().copied()
@@ -396,11 +396,7 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             if kind == 0 {
                 // Beside the target: the box of whatever stands next to it.
                 let w = b[2] - b[0];
-                let shift = if b[2] + w <= size.0 as f32 {
-                    w
-                } else {
-                    -w.min(b[0])
-                };
+                let shift = if b[2] + w <= size.0 as f32 { w } else { -w.min(b[0]) };
                 b = [b[0] + shift, b[1], b[2] + shift, b[3]];
                 why = "injected error: a box beside the target";
             }
