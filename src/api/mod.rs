@@ -1,6 +1,8 @@
 //! HTTP API: axum routes, problem+json errors, OpenAPI. Knows nothing of geometry.
 
+pub mod capture;
 pub mod error;
+pub mod frames;
 pub mod health;
 pub mod jobs;
 pub mod openapi;
@@ -37,7 +39,7 @@ pub struct AppState {
     pub metrics: Arc<Metrics>,
     pub readiness: Arc<std::sync::RwLock<Readiness>>,
     /// Hook run after a scene is stored (starts detector indexing); returns the initial status.
-    pub on_scene_stored: Arc<dyn Fn(String) + Send + Sync>,
+    pub on_scene_stored: crate::jobs::indexing::IndexHook,
     /// The detector reads ground-truth instance masks (oracle): scenes must carry them.
     pub detector_needs_instances: bool,
 }
@@ -48,6 +50,11 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/scenes", post(scenes::upload).get(scenes::list))
         .route("/v1/scenes/{id}", get(scenes::get).delete(scenes::delete))
         .route("/v1/scenes/{id}/index", post(scenes::reindex))
+        .route("/v1/scenes/{id}/frames", post(frames::append))
+        .route(
+            "/v1/scenes/{id}/frames/{name}",
+            axum::routing::delete(frames::remove),
+        )
         .route("/v1/jobs", post(jobs::create).get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get))
         .route("/v1/jobs/{id}/cancel", post(jobs::cancel))

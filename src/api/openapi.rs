@@ -8,7 +8,7 @@ use utoipa::OpenApi;
 #[openapi(
     info(title = "grounder", description = "Find the object a sentence describes in a scanned room and return its 3D box."),
     paths(
-        super::scenes::upload, super::scenes::list, super::scenes::get, super::scenes::delete, super::scenes::reindex,
+        super::scenes::upload, super::scenes::list, super::scenes::get, super::scenes::delete, super::scenes::reindex, super::frames::append, super::frames::remove,
         super::jobs::create, super::jobs::list, super::jobs::get, super::jobs::cancel, super::jobs::artifact,
         super::health::healthz, super::health::readyz, super::health::metrics,
     ),

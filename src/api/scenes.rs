@@ -1,13 +1,14 @@
 //! `/v1/scenes`: upload, list, get, delete.
 
 use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::IntoResponse;
 use futures::StreamExt;
 use serde::Serialize;
 use tokio::io::AsyncWriteExt;
 
+use super::capture::CaptureParams;
 use super::{ApiError, AppState};
 use crate::jobs::ingest::{prepare_scene, Cleanup};
 use crate::scene::archive::Limits;
@@ -18,9 +19,11 @@ pub struct SceneList {
     pub scenes: Vec<SceneRecord>,
 }
 
-/// Upload a scene archive (tar, tar.gz or zip of one FORMATS §1 scene directory).
-#[utoipa::path(post, path = "/v1/scenes", tag = "scenes",
-    request_body(content = Vec<u8>, description = "Scene archive", content_type = "application/x-tar"),
+/// Upload a scene: a tar, tar.gz or zip archive of one FORMATS §1 scene directory or of
+/// a capture (`.sens`, TUM RGB-D, nerfstudio, ARKitScenes raw; detected or named with
+/// `format`), or a raw ScanNet `.sens` body (`Content-Type: application/octet-stream`).
+#[utoipa::path(post, path = "/v1/scenes", tag = "scenes", params(CaptureParams),
+    request_body(content = Vec<u8>, description = "Scene archive or raw .sens", content_type = "application/x-tar"),
     responses(
         (status = 201, body = SceneRecord, headers(("Location" = String, description = "URL of the new scene"))),
         (status = 400, body = super::Problem, content_type = "application/problem+json"),
@@ -29,74 +32,28 @@ pub struct SceneList {
         (status = 422, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn upload(
     State(state): State<AppState>,
+    Query(params): Query<CaptureParams>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<impl IntoResponse, ApiError> {
-    let limit = state.cfg.max_upload_bytes;
-    let too_large = || {
-        ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "body_too_large",
-            format!("the upload exceeds the limit of {limit} bytes"),
-        )
-    };
-    if let Some(len) = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok())
-    {
-        if len > limit {
-            return Err(too_large());
-        }
-    }
-    let content_type = headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .map(str::to_string);
+    let capture = params.to_capture()?;
     let id = uuid::Uuid::now_v7().to_string();
+    let (upload_path, _upload_guard, content_type) = spool(&state, &headers, body, &id).await?;
     let tmp = state.cfg.data_dir.join("tmp");
-    tokio::fs::create_dir_all(&tmp)
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot create temp dir: {e}")))?;
-    let upload_path = tmp.join(format!("{id}.upload"));
-    let _upload_guard = Cleanup(Some(upload_path.clone()));
 
-    // Spool the body to disk, counting bytes.
-    let mut file = tokio::fs::File::create(&upload_path)
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    let mut stream = body.into_data_stream();
-    let mut total: u64 = 0;
-    while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| {
-            ApiError::bad_request(
-                "body_read_failed",
-                format!("the upload could not be read to the end: {e}"),
-            )
-        })?;
-        total += chunk.len() as u64;
-        if total > limit {
-            return Err(too_large());
-        }
-        file.write_all(&chunk)
-            .await
-            .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    }
-    file.flush()
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    drop(file);
-
-    let limits = Limits {
-        max_bytes: state.cfg.max_unpacked_bytes,
-        max_files: state.cfg.max_archive_files,
-        max_image_pixels: state.cfg.max_image_pixels,
-    };
+    let limits = limits(&state);
     let work_dir = tmp.join(&id);
     let scene_dir = state.jobs.scene_dir(&id);
     let (up, sd) = (upload_path.clone(), scene_dir.clone());
     let scene = tokio::task::spawn_blocking(move || {
-        prepare_scene(&up, content_type.as_deref(), &work_dir, &sd, limits)
+        prepare_scene(
+            &up,
+            content_type.as_deref(),
+            &work_dir,
+            &sd,
+            limits,
+            &capture,
+        )
     })
     .await
     .map_err(|e| ApiError::internal(format!("import task failed: {e}")))??;
@@ -126,7 +83,7 @@ pub async fn upload(
     // not a state a fast indexer reached meanwhile.
     let record = state.store.get_scene(&id).await;
     if status == "indexing" {
-        (state.on_scene_stored)(id.clone());
+        (state.on_scene_stored)(id.clone(), 0);
     } else {
         state.jobs.wake();
     }
@@ -218,11 +175,84 @@ pub async fn reindex(
         .store
         .reset_index(&id, &state.cfg.detector, usable)
         .await?;
-    (state.on_scene_stored)(id.clone());
+    (state.on_scene_stored)(id.clone(), 0);
     let record = state
         .store
         .get_scene(&id)
         .await?
         .ok_or_else(|| ApiError::not_found("scene", &id))?;
     Ok((StatusCode::ACCEPTED, axum::Json(record)))
+}
+
+/// Spool a request body to `<data>/tmp/<id>.upload`, enforcing the upload limit. The
+/// guard removes the file when dropped.
+pub(super) async fn spool(
+    state: &AppState,
+    headers: &HeaderMap,
+    body: Body,
+    id: &str,
+) -> Result<(std::path::PathBuf, Cleanup, Option<String>), ApiError> {
+    let limit = state.cfg.max_upload_bytes;
+    let too_large = || {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "body_too_large",
+            format!("the upload exceeds the limit of {limit} bytes"),
+        )
+    };
+    if let Some(len) = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        if len > limit {
+            return Err(too_large());
+        }
+    }
+    let content_type = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string);
+    let tmp = state.cfg.data_dir.join("tmp");
+    tokio::fs::create_dir_all(&tmp)
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot create temp dir: {e}")))?;
+    let upload_path = tmp.join(format!("{id}.upload"));
+    let _upload_guard = Cleanup(Some(upload_path.clone()));
+
+    // Spool the body to disk, counting bytes.
+    let mut file = tokio::fs::File::create(&upload_path)
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
+    let mut stream = body.into_data_stream();
+    let mut total: u64 = 0;
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| {
+            ApiError::bad_request(
+                "body_read_failed",
+                format!("the upload could not be read to the end: {e}"),
+            )
+        })?;
+        total += chunk.len() as u64;
+        if total > limit {
+            return Err(too_large());
+        }
+        file.write_all(&chunk)
+            .await
+            .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
+    }
+    file.flush()
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
+    drop(file);
+    Ok((upload_path, _upload_guard, content_type))
+}
+
+/// The unpacking limits of the configuration.
+pub(super) fn limits(state: &AppState) -> Limits {
+    Limits {
+        max_bytes: state.cfg.max_unpacked_bytes,
+        max_files: state.cfg.max_archive_files,
+        max_image_pixels: state.cfg.max_image_pixels,
+    }
 }

@@ -15,7 +15,9 @@ use crate::vision::candidates::{frame_candidates, CandidateParams};
 use crate::vision::{DetectInput, Detection, Detector};
 
 /// The hook the upload handler calls with a new scene id.
-pub type IndexHook = Arc<dyn Fn(String) + Send + Sync>;
+/// The hook the upload handler calls with a new scene id and the first frame idx to index
+/// (0: the whole scene, from scratch; more: only the frames appended from there on).
+pub type IndexHook = Arc<dyn Fn(String, usize) + Send + Sync>;
 
 /// Class-agnostic candidates at indexing: their settings and the room they are found in.
 #[derive(Clone)]
@@ -101,7 +103,7 @@ pub fn hook(
     store: Store,
     jobs: JobSystem,
 ) -> IndexHook {
-    Arc::new(move |scene_id: String| {
+    Arc::new(move |scene_id: String, from: usize| {
         let (store, jobs, detector, key, cands) = (
             store.clone(),
             jobs.clone(),
@@ -110,7 +112,7 @@ pub fn hook(
             candidates.clone(),
         );
         tokio::spawn(async move {
-            let outcome = index_scene(&store, &jobs, &scene_id, &key, detector, cands).await;
+            let outcome = index_scene(&store, &jobs, &scene_id, &key, detector, cands, from).await;
             let (status, err) = match outcome {
                 Ok(()) => ("ready", None),
                 Err(e) => ("failed", Some(format!("{e:#}"))),
@@ -142,7 +144,7 @@ pub fn hook(
 pub async fn resume(store: &Store, hook: &IndexHook) -> anyhow::Result<()> {
     store.fail_queued_jobs_of_failed_scenes().await?;
     for id in store.scenes_with_status("indexing").await? {
-        hook(id);
+        hook(id, 0);
     }
     Ok(())
 }
@@ -154,6 +156,7 @@ async fn index_scene(
     key: &str,
     detector: Option<Arc<dyn Detector>>,
     candidates: Option<CandidateSetup>,
+    from: usize,
 ) -> anyhow::Result<()> {
     let Some(detector) = detector else {
         anyhow::bail!("detector {key:?} could not be loaded (see /readyz)");
@@ -167,7 +170,9 @@ async fn index_scene(
         .clone()
         .map(|l| l.into_iter().collect());
     let usable: Vec<FrameData> = scene.frames.iter().filter(|f| f.usable).cloned().collect();
-    store.reset_index(scene_id, key, usable.len()).await?;
+    if from == 0 {
+        store.reset_index(scene_id, key, usable.len()).await?;
+    }
     // The room's box, from every frame's depth, tells structure from objects.
     let room: Option<Arc<RoomLayout>> = match &candidates {
         Some(setup) if setup.layout.enabled => {
@@ -183,7 +188,7 @@ async fn index_scene(
         }
         _ => None,
     };
-    for frame in usable {
+    for frame in usable.into_iter().filter(|f| f.idx >= from) {
         let (d, l, c, r) = (
             detector.clone(),
             labels.clone(),

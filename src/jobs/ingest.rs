@@ -5,8 +5,36 @@
 use std::path::{Path, PathBuf};
 
 use crate::scene::archive::{self, ArchiveKind, Limits};
+use crate::scene::formats::{self, sens, CaptureFormat, FormatOptions};
 use crate::scene::import::{self, ImportedScene};
 use crate::scene::{format, SceneError};
+
+/// What the uploader said about the body: a named capture format (None: detect) and its
+/// settings.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Capture {
+    pub format: Option<CaptureFormat>,
+    pub opts: FormatOptions,
+}
+
+/// The scene's name for a converted capture: the `.sens` file's stem, else the capture
+/// folder's name unless it is the unpack folder itself.
+fn scene_name(f: CaptureFormat, input: &Path, unpacked: &Path) -> String {
+    if f == CaptureFormat::Sens {
+        if let Ok(Some(p)) = sens::find_sens(input) {
+            if let Some(s) = p.file_stem() {
+                return s.to_string_lossy().into_owned();
+            }
+        }
+    }
+    if input == unpacked {
+        return "scene".into();
+    }
+    input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into())
+}
 
 /// Removes a path when dropped unless disarmed.
 pub struct Cleanup(pub Option<PathBuf>);
@@ -37,6 +65,7 @@ pub fn prepare_scene(
     work_dir: &Path,
     scene_dir: &Path,
     limits: Limits,
+    capture: &Capture,
 ) -> Result<ImportedScene, SceneError> {
     let mut head = [0u8; 512];
     let n = {
@@ -56,18 +85,64 @@ pub fn prepare_scene(
         total
     };
     if n == 0 {
+        // (an empty body is never a capture either)
         return Err(SceneError::NotArchive(
             "the request body is empty; send a tar, tar.gz or zip archive of one scene".into(),
         ));
     }
-    let kind: ArchiveKind = archive::sniff(&head[..n], content_type)?;
     std::fs::create_dir_all(work_dir)
         .map_err(|e| SceneError::Io(format!("cannot create work dir: {e}")))?;
     let _work = Cleanup(Some(work_dir.to_path_buf()));
-    archive::unpack(upload, kind, work_dir, limits)?;
-    let root = format::find_scene_root(work_dir)?;
+    let opts = FormatOptions {
+        max_bytes: limits.max_bytes,
+        max_pixels: limits.max_image_pixels,
+        ..capture.opts
+    };
+    let raw_sens = capture.format == Some(CaptureFormat::Sens) && sens::looks_like_sens(&head[..n])
+        || (capture.format.is_none()
+            && archive::sniff(&head[..n], content_type).is_err()
+            && sens::looks_like_sens(&head[..n]));
+    let (root, format_used) = if raw_sens {
+        let out = work_dir.join("converted").join("scene");
+        formats::convert(CaptureFormat::Sens, upload, &out, &opts)?;
+        (out, Some(CaptureFormat::Sens))
+    } else {
+        let kind: ArchiveKind = archive::sniff(&head[..n], content_type)?;
+        let unpacked = work_dir.join("in");
+        std::fs::create_dir_all(&unpacked)
+            .map_err(|e| SceneError::Io(format!("cannot create work dir: {e}")))?;
+        archive::unpack(upload, kind, &unpacked, limits)?;
+        let found = formats::detect(&unpacked);
+        let chosen = match (capture.format, found) {
+            (Some(f), Some((g, root))) if f == g => Some((f, root)),
+            (Some(f), _) => Some((f, formats::single_folder(&unpacked))),
+            (None, found) => found,
+        };
+        match chosen {
+            Some((f, input)) => {
+                let name = scene_name(f, &input, &unpacked);
+                let out = work_dir.join("converted").join(name);
+                formats::convert(f, &input, &out, &opts)?;
+                (out, Some(f))
+            }
+            None => (format::find_scene_root(&unpacked)?, None),
+        }
+    };
     let files = format::scan(&root)?;
-    let mut scene = import::import(&files, work_dir, limits.max_image_pixels)?;
+    let mut scene = import::import(
+        &files,
+        work_dir.join("converted").as_path(),
+        limits.max_image_pixels,
+    )?;
+    if format_used.is_none() {
+        // A §1 layout: its folder name, unless the archive had no top folder.
+        scene.name = if root == work_dir.join("in") {
+            "scene".into()
+        } else {
+            scene.name.clone()
+        };
+    }
+    scene.format = format_used;
 
     let mut guard = Cleanup(Some(scene_dir.to_path_buf()));
     let color_dir = scene_dir.join("color");

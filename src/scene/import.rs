@@ -29,6 +29,8 @@ pub struct ImportedFrame {
 pub struct ImportedScene {
     pub name: String,
     pub layout: Layout,
+    /// The capture format the upload was converted from (None: a FORMATS §1 layout).
+    pub format: Option<super::formats::CaptureFormat>,
     pub color: Intrinsics,
     pub depth: Option<Intrinsics>,
     pub depth_size: (u32, u32),
@@ -260,6 +262,7 @@ pub fn import(
     Ok(ImportedScene {
         name,
         layout: files.layout,
+        format: None,
         color,
         depth: depth_k,
         depth_size: (dw, dh),

@@ -4,6 +4,7 @@
 pub mod archive;
 pub mod archive_guard;
 pub mod format;
+pub mod formats;
 pub mod import;
 pub mod model;
 

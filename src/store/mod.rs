@@ -1,6 +1,7 @@
 //! The embedded SQLite store (WAL mode, migrations from `migrations/`).
 
 pub mod cache;
+pub mod frames;
 pub mod jobs;
 pub mod scenes;
 

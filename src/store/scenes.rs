@@ -27,7 +27,7 @@ pub struct SceneRecord {
     pub name: String,
     /// `indexing`, `ready` or `failed`.
     pub status: String,
-    /// `scannet` (FORMATS §1a) or `posed` (§1b).
+    /// `scannet` (FORMATS §1a), `posed` (§1b), or the capture format it was converted from (`sens`, `tum`, `nerfstudio` or `arkitscenes`).
     pub layout: String,
     /// Number of frames.
     pub frames: i64,
@@ -42,6 +42,8 @@ pub struct SceneRecord {
     pub index: IndexProgress,
     pub error: Option<String>,
     pub created_at: String,
+    /// Bumped on every change of the scene's frames (appended or removed).
+    pub revision: i64,
 }
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -78,7 +80,11 @@ impl Store {
         )
         .bind(id)
         .bind(&scene.name)
-        .bind(scene.layout.as_str())
+        .bind(
+            scene
+                .format
+                .map_or(scene.layout.as_str(), |f| f.as_str()),
+        )
         .bind(status)
         .bind(scene.color.width as i64)
         .bind(scene.color.height as i64)
@@ -131,6 +137,7 @@ impl Store {
             },
             error: row.try_get("error")?,
             created_at: row.try_get("created_at")?,
+            revision: row.try_get("revision")?,
         })
     }
 
@@ -423,7 +430,7 @@ impl Store {
         let dw: i64 = s.try_get("depth_width")?;
         let dh: i64 = s.try_get("depth_height")?;
         let rows = sqlx::query(
-            "SELECT idx, name, pose, usable, depth FROM frames WHERE scene_id = ? ORDER BY idx",
+            "SELECT idx, name, pose, usable, depth, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? ORDER BY idx",
         )
         .bind(id)
         .fetch_all(&self.pool)
@@ -436,6 +443,7 @@ impl Store {
                 r.try_get::<Vec<u8>, _>("pose")?,
                 r.try_get::<i64, _>("usable")? != 0,
                 r.try_get::<Vec<u8>, _>("depth")?,
+                r.try_get::<String, _>("file")?,
             ));
         }
         let scene_dir_owned = scene_dir.to_path_buf();
@@ -444,11 +452,11 @@ impl Store {
             use rayon::prelude::*;
             let scene_dir = scene_dir_owned;
             raw.into_par_iter()
-                .map(|(idx, name, pose, usable, depth)| {
+                .map(|(idx, name, pose, usable, depth, file)| {
                     let pose = pose_from_blob(&pose).ok_or_else(|| format!("frame {name} pose"))?;
                     let depth = decompress_depth(&depth, dw as u32, dh as u32)
                         .ok_or_else(|| format!("frame {name} depth"))?;
-                    let inst = scene_dir.join("instance").join(format!("{idx}.png"));
+                    let inst = scene_dir.join("instance").join(format!("{file}.png"));
                     Ok(FrameData {
                         idx: idx as usize,
                         name,
@@ -461,7 +469,7 @@ impl Store {
                             align: align_m,
                         },
                         depth: Arc::new(depth),
-                        color_path: scene_dir.join("color").join(format!("{idx}.jpg")),
+                        color_path: scene_dir.join("color").join(format!("{file}.jpg")),
                         instance_path: inst.is_file().then_some(inst),
                     })
                 })

@@ -3,6 +3,10 @@
 //! against a scripted fake VLM, covering every feedback path, retries, the retry limit
 //! and cancellation.
 
+mod format_writers;
+mod formats;
+mod formats_bench;
+mod frames;
 mod helpers;
 mod hostile;
 mod jobs;
