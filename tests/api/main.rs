@@ -5,6 +5,7 @@
 
 mod helpers;
 mod jobs;
+mod keys;
 mod openapi;
 mod restart;
 mod scenes;
