@@ -3,12 +3,16 @@
 //! against a scripted fake VLM, covering every feedback path, retries, the retry limit
 //! and cancellation.
 
+mod events;
 mod helpers;
+mod idempotency;
 mod jobs;
 mod keys;
 mod openapi;
+mod polling;
 mod restart;
 mod scenes;
+mod webhooks;
 
 mod agent_fixture;
 mod agent_paths;
