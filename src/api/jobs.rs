@@ -100,7 +100,7 @@ pub struct JobBatch {
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 #[serde(untagged)]
 pub enum Created {
-    One(Job),
+    One(Box<Job>),
     Batch(JobBatch),
 }
 

@@ -174,7 +174,7 @@ impl Dispatcher {
             Err(e) => (None, Some(e)),
         };
         let delivered = error.is_none();
-        let retry_at = (now_ms() + backoff(d.attempts + 1).as_millis() as i64).min(i64::MAX);
+        let retry_at = now_ms() + backoff(d.attempts + 1).as_millis() as i64;
         let retry_at_ms =
             (!delivered && retry_at - d.first_at_ms <= GIVE_UP_AFTER_MS).then_some(retry_at);
         let a = Attempt {
