@@ -2,7 +2,7 @@
 //! artifacts.
 
 use axum::body::Bytes;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Extension;
@@ -12,6 +12,7 @@ use serde_json::Value;
 use sha2::{Digest, Sha256};
 
 use super::auth::Caller;
+use super::error::Query;
 use super::{conditional, idempotency, ApiError, AppState};
 use crate::jobs::webhooks::{check_url, UrlRefusal};
 use crate::store::webhooks::Delivery;

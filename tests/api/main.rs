@@ -3,6 +3,7 @@
 //! against a scripted fake VLM, covering every feedback path, retries, the retry limit
 //! and cancellation.
 
+mod bench_sse;
 mod events;
 mod helpers;
 mod idempotency;
