@@ -172,7 +172,10 @@ where
     ) -> Result<Self, Self::Rejection> {
         match axum::extract::Query::<T>::from_request_parts(parts, state).await {
             Ok(axum::extract::Query(v)) => Ok(Query(v)),
-            Err(rej) => Err(ApiError::bad_request("invalid_query_string", rej.body_text())),
+            Err(rej) => Err(ApiError::bad_request(
+                "invalid_query_string",
+                rej.body_text(),
+            )),
         }
     }
 }
