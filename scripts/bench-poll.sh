@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Polling throughput from a second process: `grounder serve` (release) with the test
 # pipeline, one small synthetic scene, one finished job, then `wrk` polling
-# GET /v1/jobs/{id} with 32 keep-alive connections. Needs wrk (Debian package `wrk`) and jq.
+# GET /v1/jobs/{id} with 32 keep-alive connections, first plainly (200 with the job), then
+# with `If-None-Match: <its ETag>` (304, no body). Needs wrk (Debian package `wrk`) and jq.
 #
 # Environment (defaults in brackets): GROUNDER_BIN [built with cargo build --release],
 # PORT [18080], DURATION [10s], CONNECTIONS [32], THREADS [1].
@@ -24,5 +25,11 @@ for _ in $(seq 100); do
     [[ $(curl -sf "$BASE/v1/jobs/$JOB" | jq -r .status) == succeeded ]] && break
     sleep 0.1
 done
+ETAG=$(curl -sfD - -o /dev/null "$BASE/v1/jobs/$JOB" | tr -d '\r' | sed -n 's/^etag: //Ip')
+[[ $(curl -s -o /dev/null -w '%{http_code}' -H "If-None-Match: $ETAG" "$BASE/v1/jobs/$JOB") == 304 ]] \
+    || { echo "error: If-None-Match did not give 304" >&2; exit 1; }
 echo "load before: $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "== plain polling (200 + body)"
 wrk -t"$THREADS" -c"$CONNECTIONS" -d"$DURATION" "$BASE/v1/jobs/$JOB"
+echo "== conditional polling (If-None-Match: $ETAG -> 304)"
+wrk -t"$THREADS" -c"$CONNECTIONS" -d"$DURATION" -H "If-None-Match: $ETAG" "$BASE/v1/jobs/$JOB"

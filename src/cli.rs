@@ -36,6 +36,8 @@ pub enum Command {
     Convert(crate::eval::cli::ConvertArgs),
     /// Print the service's OpenAPI document (YAML).
     Openapi,
+    /// Manage API keys (create, list, revoke, webhook-secret).
+    Keys(crate::keys::KeysArgs),
 }
 
 /// Parse arguments, run the subcommand, print a one-line error on failure.
@@ -63,6 +65,7 @@ pub fn main() -> ExitCode {
             Command::OracleVlm(a) => crate::eval::cli::run_oracle_vlm(a).await,
             Command::Eval(a) => crate::eval::cli::run_eval(a).await,
             Command::Convert(a) => crate::eval::cli::run_convert(a),
+            Command::Keys(a) => crate::keys::run(a).await,
             Command::Openapi => {
                 print!("{}", crate::api::openapi::yaml());
                 Ok(())

@@ -15,6 +15,10 @@ pub struct ServeArgs {
     /// Optional TOML configuration file (keys as in `Config`).
     #[arg(long, env = "GROUNDER_CONFIG")]
     pub config: Option<PathBuf>,
+    /// Serve without API keys on a non-loopback address (anyone reaching the port sees
+    /// everything). Also GROUNDER_ALLOW_ANONYMOUS=1.
+    #[arg(long)]
+    pub allow_anonymous: bool,
 }
 
 /// Everything the service can be configured with.
@@ -48,6 +52,10 @@ pub struct Config {
     pub ort_dylib: Option<PathBuf>,
     /// Folder whose prompt files override the built-in ones (GROUNDER_PROMPTS_DIR).
     pub prompts_dir: Option<PathBuf>,
+    /// Answer without API keys (when none exist) even on a non-loopback address.
+    pub allow_anonymous: bool,
+    /// Accept webhook URLs on loopback and private addresses (tests, closed networks).
+    pub webhook_allow_private: bool,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
     /// VLM client settings used instead of `VlmConfig::from_env()` when set (tests and
@@ -73,6 +81,8 @@ impl Default for Config {
             model_dir: None,
             ort_dylib: None,
             prompts_dir: None,
+            allow_anonymous: false,
+            webhook_allow_private: false,
             agent: crate::agent::AgentParams::default(),
             vlm: None,
         }
@@ -107,6 +117,9 @@ impl Config {
             cfg.data_dir = d.clone();
         }
         cfg.apply_env()?;
+        if args.allow_anonymous {
+            cfg.allow_anonymous = true;
+        }
         Ok(cfg)
     }
 
@@ -141,6 +154,21 @@ impl Config {
         if let Ok(v) = std::env::var("GROUNDER_MODEL_DIR") {
             self.model_dir = Some(PathBuf::from(v));
         }
+        fn flag(key: &str, into: &mut bool) -> anyhow::Result<()> {
+            if let Ok(v) = std::env::var(key) {
+                *into = match v.trim().to_ascii_lowercase().as_str() {
+                    "1" | "true" | "yes" | "on" => true,
+                    "0" | "false" | "no" | "off" | "" => false,
+                    _ => anyhow::bail!("{key}={v:?} is not 1 or 0"),
+                };
+            }
+            Ok(())
+        }
+        flag("GROUNDER_ALLOW_ANONYMOUS", &mut self.allow_anonymous)?;
+        flag(
+            "GROUNDER_WEBHOOK_ALLOW_PRIVATE",
+            &mut self.webhook_allow_private,
+        )?;
         num("GROUNDER_WORKERS", &mut self.workers)?;
         num("GROUNDER_MAX_UPLOAD_BYTES", &mut self.max_upload_bytes)?;
         num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;

@@ -10,6 +10,7 @@ pub mod config;
 pub mod eval;
 pub mod geometry;
 pub mod jobs;
+pub mod keys;
 pub mod metrics;
 pub mod scene;
 pub mod startup;

@@ -20,6 +20,11 @@ pub struct Application {
     state: AppState,
 }
 
+/// Whether the service may answer without keys: on loopback, or when told to.
+fn anonymous_allowed(addr: &SocketAddr, allow_anonymous: bool) -> bool {
+    allow_anonymous || addr.ip().is_loopback()
+}
+
 impl Application {
     /// Open the store, recover interrupted jobs, bind the listener, start the workers.
     pub async fn build(cfg: Config) -> anyhow::Result<Self> {
@@ -32,6 +37,8 @@ impl Application {
                 "recovered jobs interrupted by the previous process"
             );
         }
+        // No request of the previous process is still in flight.
+        store.idempotency_release_in_flight().await?;
         // Leftovers of uploads interrupted by a crash.
         let _ = std::fs::remove_dir_all(cfg.data_dir.join("tmp"));
         let metrics = Arc::new(Metrics::default());
@@ -50,6 +57,20 @@ impl Application {
         let listener = TcpListener::bind(&cfg.addr)
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", cfg.addr))?;
+        let bound = listener.local_addr()?;
+        let anonymous = anonymous_allowed(&bound, cfg.allow_anonymous);
+        if !store.any_active_key().await? {
+            if !anonymous {
+                anyhow::bail!(
+                    "refusing to listen on {bound} without API keys: anyone reaching it would see every scene and job. \
+                     Create a key with `grounder keys create --name NAME`, or pass --allow-anonymous"
+                );
+            }
+            if !bound.ip().is_loopback() {
+                tracing::warn!("no API keys and --allow-anonymous: anyone reaching {bound} can use the service");
+                eprintln!("warning: serving anonymously on {bound} (--allow-anonymous): anyone reaching it sees every scene and job");
+            }
+        }
         let needs_instances = detector.as_ref().is_some_and(|d| d.needs_instances());
         let candidates =
             cfg.agent
@@ -74,6 +95,7 @@ impl Application {
             readiness: Arc::new(std::sync::RwLock::new(readiness)),
             on_scene_stored,
             detector_needs_instances: needs_instances,
+            auth: Arc::new(api::auth::Auth::new(anonymous)),
         };
         crate::jobs::indexing::resume(&state.store, &state.on_scene_stored).await?;
         state.jobs.start();
@@ -90,10 +112,23 @@ impl Application {
         shutdown: F,
     ) -> anyhow::Result<()> {
         let jobs = self.state.jobs.clone();
+        let hooks_stop = tokio_util::sync::CancellationToken::new();
+        let dispatcher = crate::jobs::webhooks::Dispatcher::new(
+            self.state.store.clone(),
+            self.state.cfg.webhook_allow_private,
+        )?;
+        let hooks = tokio::spawn(dispatcher.run(hooks_stop.clone()));
+        let closing = self.state.store.events.closing.clone();
         let app = api::router(self.state);
-        axum::serve(self.listener, app)
-            .with_graceful_shutdown(shutdown)
-            .await?;
+        let served = axum::serve(self.listener, app)
+            .with_graceful_shutdown(async move {
+                shutdown.await;
+                closing.cancel();
+            })
+            .await;
+        hooks_stop.cancel();
+        let _ = hooks.await;
+        served?;
         jobs.shutdown().await;
         Ok(())
     }

@@ -1,22 +1,44 @@
-//! `/v1/jobs`: create, poll, list, cancel, artifacts.
+//! `/v1/jobs`: create (one or many, idempotent), poll (conditional, long), list, cancel,
+//! artifacts.
 
-use axum::extract::{Path, Query, State};
-use axum::http::{header, StatusCode};
-use axum::response::IntoResponse;
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Extension;
 use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 use serde_json::Value;
+use sha2::{Digest, Sha256};
 
-use super::error::Json;
-use super::{ApiError, AppState};
-use crate::store::{JobRecord, JobStatus, ListJobs};
+use super::auth::Caller;
+use super::error::Query;
+use super::{conditional, idempotency, ApiError, AppState};
+use crate::jobs::webhooks::{check_url, UrlRefusal};
+use crate::store::webhooks::Delivery;
+use crate::store::{JobRecord, JobStatus, ListJobs, NewJobs};
 
+/// `query` for one job, or `queries` for one job per query (answered as `{"jobs": [...]}`).
 #[derive(Debug, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CreateJob {
     pub scene_id: String,
     /// The description of the object, e.g. "the black chair next to the window".
-    pub query: String,
+    pub query: Option<String>,
+    /// Several descriptions at once (1 to 100); one job each, in this order.
+    pub queries: Option<Vec<String>>,
+    /// http(s) URL POSTed the job (signed per Standard Webhooks) when it ends.
+    pub webhook_url: Option<String>,
+}
+
+/// Webhook delivery of a job.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct WebhookInfo {
+    pub url: String,
+    /// `pending`, `delivered` or `failed` once the job has ended; absent before.
+    pub state: Option<String>,
+    /// Every attempt, oldest first.
+    pub deliveries: Vec<Delivery>,
 }
 
 /// A grounding job.
@@ -40,6 +62,9 @@ pub struct Job {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Vec<Object>>)]
     pub trace: Option<Box<RawValue>>,
+    /// Present when the job was created with a `webhook_url` (omitted in lists).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub webhook: Option<WebhookInfo>,
 }
 
 impl Job {
@@ -56,8 +81,28 @@ impl Job {
             error: r.error,
             result: r.result,
             trace,
+            webhook: r.webhook_url.map(|url| WebhookInfo {
+                url,
+                state: None,
+                deliveries: Vec::new(),
+            }),
         }
     }
+}
+
+/// The answer to a `queries` request.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct JobBatch {
+    /// One job per query, in the order of `queries`.
+    pub jobs: Vec<Job>,
+}
+
+/// What `POST /v1/jobs` answers: a job, or a batch for `queries`.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+#[serde(untagged)]
+pub enum Created {
+    One(Box<Job>),
+    Batch(JobBatch),
 }
 
 #[derive(Debug, Serialize, utoipa::ToSchema)]
@@ -82,18 +127,12 @@ fn empty_trace() -> Box<RawValue> {
 }
 
 const MAX_QUERY_CHARS: usize = 2000;
+const MAX_BATCH: usize = 100;
+/// Suggested wait after a job quota refusal.
+const QUOTA_RETRY_SECS: u64 = 10;
 
-/// Create a grounding job (it waits queued while its scene is still indexing).
-#[utoipa::path(post, path = "/v1/jobs", tag = "jobs", request_body = CreateJob,
-    responses((status = 202, body = Job, headers(("Location" = String))),
-              (status = 400, body = super::Problem, content_type = "application/problem+json"),
-              (status = 404, body = super::Problem, content_type = "application/problem+json"),
-              (status = 409, body = super::Problem, content_type = "application/problem+json")))]
-pub async fn create(
-    State(state): State<AppState>,
-    Json(req): Json<CreateJob>,
-) -> Result<impl IntoResponse, ApiError> {
-    let query = req.query.trim();
+fn check_query(q: &str) -> Result<String, ApiError> {
+    let query = q.trim();
     if query.is_empty() {
         return Err(ApiError::bad_request(
             "empty_query",
@@ -106,10 +145,90 @@ pub async fn create(
             format!("query is longer than {MAX_QUERY_CHARS} characters"),
         ));
     }
+    Ok(query.to_string())
+}
+
+/// Create a grounding job, or one per entry of `queries` (they wait queued while their
+/// scene is still indexing). With `Idempotency-Key`, a retry with the same body replays
+/// the first answer and creates nothing.
+#[utoipa::path(post, path = "/v1/jobs", tag = "jobs", request_body = CreateJob,
+    params(("Idempotency-Key" = Option<String>, Header, description = "Makes retries safe: the same key and body within 24 h replay the first answer")),
+    responses((status = 202, body = Created, description = "A Job for `query`, a JobBatch for `queries`", headers(("Location" = String, description = "The job (single query only)"))),
+              (status = 400, body = super::Problem, content_type = "application/problem+json"),
+              (status = 401, body = super::Problem, content_type = "application/problem+json"),
+              (status = 404, body = super::Problem, content_type = "application/problem+json"),
+              (status = 409, body = super::Problem, content_type = "application/problem+json", description = "scene_failed, or idempotency_key_in_use"),
+              (status = 422, body = super::Problem, content_type = "application/problem+json", description = "idempotency_key_reused, invalid_webhook_url, webhook_url_not_allowed, webhook_requires_key"),
+              (status = 429, body = super::Problem, content_type = "application/problem+json", headers(("Retry-After" = u64, description = "Seconds")))),
+    security((), ("bearer" = [])))]
+pub async fn create(
+    State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let key = idempotency::key_of(&headers)?;
+    let json_type = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.split(';').next())
+        .is_some_and(|m| {
+            let m = m.trim();
+            m == "application/json" || (m.starts_with("application/") && m.ends_with("+json"))
+        });
+    if !json_type {
+        return Err(ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "invalid_json",
+            "expected Content-Type: application/json",
+        ));
+    }
+    let req: CreateJob = serde_json::from_slice(&body).map_err(|e| {
+        let status = if e.is_data() {
+            StatusCode::UNPROCESSABLE_ENTITY
+        } else {
+            StatusCode::BAD_REQUEST
+        };
+        ApiError::new(status, "invalid_json", format!("invalid job request: {e}"))
+    })?;
+    let hash = hex::encode(Sha256::digest(&body));
+    let st = state.clone();
+    let c = caller.clone();
+    idempotency::run(&state, &caller, "POST /v1/jobs", key, &hash, async move {
+        create_now(st, c, req).await
+    })
+    .await
+}
+
+async fn create_now(state: AppState, caller: Caller, req: CreateJob) -> Result<Response, ApiError> {
+    let (queries, batch) = match (req.query, req.queries) {
+        (Some(q), None) => (vec![check_query(&q)?], false),
+        (None, Some(qs)) => {
+            if qs.is_empty() || qs.len() > MAX_BATCH {
+                return Err(ApiError::bad_request(
+                    "invalid_queries",
+                    format!("queries must hold 1 to {MAX_BATCH} descriptions"),
+                ));
+            }
+            (
+                qs.iter()
+                    .map(|q| check_query(q))
+                    .collect::<Result<_, _>>()?,
+                true,
+            )
+        }
+        _ => {
+            return Err(ApiError::bad_request(
+                "query_or_queries",
+                "give either query or queries",
+            ))
+        }
+    };
     let scene = state
         .store
         .get_scene(&req.scene_id)
         .await?
+        .filter(|s| caller.sees(s.owner))
         .ok_or_else(|| ApiError::not_found("scene", &req.scene_id))?;
     if scene.status == "failed" {
         return Err(ApiError::new(
@@ -122,29 +241,138 @@ pub async fn create(
             ),
         ));
     }
-    let id = uuid::Uuid::now_v7().to_string();
-    let job = state.store.create_job(&id, &scene.id, query).await?;
+    if let Some(url) = &req.webhook_url {
+        if caller.key_id.is_none() {
+            return Err(ApiError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "webhook_requires_key",
+                "webhooks are signed with the caller's key secret: create a key with `grounder keys create`",
+            ));
+        }
+        check_url(url, state.cfg.webhook_allow_private)
+            .await
+            .map_err(|e| match e {
+                UrlRefusal::Invalid(_) => ApiError::new(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    "invalid_webhook_url",
+                    e.to_string(),
+                ),
+                UrlRefusal::NotAllowed(_) => ApiError::new(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    "webhook_url_not_allowed",
+                    e.to_string(),
+                ),
+            })?;
+    }
+    let jobs = queries
+        .into_iter()
+        .map(|q| (uuid::Uuid::now_v7().to_string(), q))
+        .collect();
+    let created = state
+        .store
+        .create_jobs(&NewJobs {
+            jobs,
+            scene_id: &scene.id,
+            owner: caller.key_id,
+            webhook_url: req.webhook_url.as_deref(),
+            max_active: caller.max_running_jobs,
+        })
+        .await?
+        .ok_or_else(|| {
+            ApiError::too_many(
+                "quota_exceeded",
+                format!(
+                    "this key may have at most {} queued or running jobs",
+                    caller.max_running_jobs.unwrap_or(0)
+                ),
+                QUOTA_RETRY_SECS,
+            )
+        })?;
     state.jobs.wake();
+    let mut jobs: Vec<Job> = created
+        .into_iter()
+        .map(|r| Job::from_record(r, Some(empty_trace())))
+        .collect();
+    if batch {
+        return Ok((StatusCode::ACCEPTED, axum::Json(JobBatch { jobs })).into_response());
+    }
+    let job = jobs
+        .pop()
+        .ok_or_else(|| ApiError::internal("no job was created"))?;
     Ok((
         StatusCode::ACCEPTED,
-        [(header::LOCATION, format!("/v1/jobs/{id}"))],
-        axum::Json(Job::from_record(job, Some(empty_trace()))),
-    ))
+        [(header::LOCATION, format!("/v1/jobs/{}", job.id))],
+        axum::Json(job),
+    )
+        .into_response())
 }
 
-/// A job with its trace.
-#[utoipa::path(get, path = "/v1/jobs/{id}", tag = "jobs", params(("id" = String, Path)),
-    responses((status = 200, body = Job), (status = 404, body = super::Problem, content_type = "application/problem+json")))]
+/// A job visible to the caller, with its trace (404 for other keys' jobs).
+pub(crate) async fn visible_job(
+    state: &AppState,
+    caller: &Caller,
+    id: &str,
+) -> Result<(JobRecord, Box<RawValue>), ApiError> {
+    state
+        .store
+        .get_job_with_trace(id)
+        .await?
+        .filter(|(j, _)| caller.sees(j.owner))
+        .ok_or_else(|| ApiError::not_found("job", id))
+}
+
+/// The JSON a poll answers: the job, its trace and its webhook deliveries.
+pub(crate) async fn job_body(
+    state: &AppState,
+    job: JobRecord,
+    trace: Box<RawValue>,
+) -> Result<Vec<u8>, ApiError> {
+    let id = job.id.clone();
+    let mut j = Job::from_record(job, Some(trace));
+    if let Some(w) = j.webhook.as_mut() {
+        let (st, list) = state.store.webhook_deliveries(&id).await?;
+        w.state = st;
+        w.deliveries = list;
+    }
+    serde_json::to_vec(&j).map_err(|e| ApiError::internal(format!("cannot encode job: {e}")))
+}
+
+/// A job with its trace. `ETag` / `If-None-Match` answer 304 while nothing changed;
+/// `Prefer: wait=N` (N ≤ 60) holds the answer until the job ends or N seconds pass.
+#[utoipa::path(get, path = "/v1/jobs/{id}", tag = "jobs",
+    params(("id" = String, Path),
+           ("If-None-Match" = Option<String>, Header, description = "An ETag of this job: 304 while it is current"),
+           ("Prefer" = Option<String>, Header, description = "`wait=N` (seconds, at most 60): answer when the job ends or after N seconds")),
+    responses((status = 200, body = Job, headers(("ETag" = String), ("Preference-Applied" = String, description = "`wait=N` when the wait was honoured"))),
+              (status = 304, description = "Not modified", headers(("ETag" = String), ("Preference-Applied" = String))),
+              (status = 401, body = super::Problem, content_type = "application/problem+json"),
+              (status = 404, body = super::Problem, content_type = "application/problem+json")),
+    security((), ("bearer" = [])))]
 pub async fn get(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-) -> Result<axum::Json<Job>, ApiError> {
-    let (job, trace) = state
-        .store
-        .get_job_with_trace(&id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("job", &id))?;
-    Ok(axum::Json(Job::from_record(job, Some(trace))))
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let wait = conditional::prefer_wait(&headers);
+    // Subscribe before reading, so a change between the read and the wait is seen.
+    let mut changes = wait.map(|_| state.store.events.subscribe(&id));
+    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(wait.unwrap_or(0));
+    let (job, trace) = loop {
+        let (job, trace) = visible_job(&state, &caller, &id).await?;
+        let Some(rx) = changes.as_mut() else {
+            break (job, trace);
+        };
+        if job.status.is_terminal() {
+            break (job, trace);
+        }
+        match tokio::time::timeout_at(deadline, rx.changed()).await {
+            Ok(Ok(())) => continue,
+            _ => break (job, trace),
+        }
+    };
+    let body = job_body(&state, job, trace).await?;
+    Ok(conditional::json_with_etag(&headers, body, wait))
 }
 
 /// Jobs, newest first, with cursor pagination.
@@ -152,6 +380,7 @@ pub async fn get(
     responses((status = 200, body = JobList), (status = 400, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn list(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Query(p): Query<ListParams>,
 ) -> Result<axum::Json<JobList>, ApiError> {
     let limit = p.limit.unwrap_or(50);
@@ -180,6 +409,7 @@ pub async fn list(
     let rows = state
         .store
         .list_jobs(&ListJobs {
+            owner: caller.list_filter(),
             scene_id: p.scene_id,
             status,
             limit: limit + 1,
@@ -196,7 +426,10 @@ pub async fn list(
     Ok(axum::Json(JobList {
         jobs: rows
             .into_iter()
-            .map(|r| Job::from_record(r, None))
+            .map(|r| Job {
+                webhook: None,
+                ..Job::from_record(r, None)
+            })
             .collect(),
         next_cursor,
     }))
@@ -208,12 +441,14 @@ pub async fn list(
               (status = 409, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn cancel(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-) -> Result<axum::Json<Job>, ApiError> {
+) -> Result<Response, ApiError> {
     let before = state
         .store
         .get_job(&id)
         .await?
+        .filter(|j| caller.sees(j.owner))
         .ok_or_else(|| ApiError::not_found("job", &id))?;
     if before.status.is_terminal() {
         return Err(ApiError::new(
@@ -228,12 +463,9 @@ pub async fn cancel(
         .await?
         .ok_or_else(|| ApiError::not_found("job", &id))?;
     state.jobs.interrupt(&id);
-    let (after, trace) = state
-        .store
-        .get_job_with_trace(&id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("job", &id))?;
-    Ok(axum::Json(Job::from_record(after, Some(trace))))
+    let (after, trace) = visible_job(&state, &caller, &id).await?;
+    let body = job_body(&state, after, trace).await?;
+    Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response())
 }
 
 /// An image the pipeline produced (stitched grids, annotated frames).
@@ -241,6 +473,7 @@ pub async fn cancel(
     responses((status = 200, content_type = "image/jpeg", body = Vec<u8>), (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn artifact(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path((id, name)): Path<(String, String)>,
 ) -> Result<impl IntoResponse, ApiError> {
     let valid = !name.starts_with('.')
@@ -257,6 +490,14 @@ pub async fn artifact(
     };
     if !valid || !valid_id {
         return Err(missing());
+    }
+    let visible = state
+        .store
+        .get_job(&id)
+        .await?
+        .is_some_and(|j| caller.sees(j.owner));
+    if !visible {
+        return Err(ApiError::not_found("job", &id));
     }
     let path = state.jobs.artifact_dir(&id).join(&name);
     let bytes = tokio::fs::read(&path).await.map_err(|_| missing())?;

@@ -1,9 +1,13 @@
 //! HTTP API: axum routes, problem+json errors, OpenAPI. Knows nothing of geometry.
 
+pub mod auth;
 pub mod capture;
+pub mod conditional;
 pub mod error;
+pub mod events;
 pub mod frames;
 pub mod health;
+pub mod idempotency;
 pub mod jobs;
 pub mod openapi;
 pub mod scenes;
@@ -42,6 +46,8 @@ pub struct AppState {
     pub on_scene_stored: crate::jobs::indexing::IndexHook,
     /// The detector reads ground-truth instance masks (oracle): scenes must carry them.
     pub detector_needs_instances: bool,
+    /// API keys and anonymous access.
+    pub auth: Arc<auth::Auth>,
 }
 
 /// All routes.
@@ -57,6 +63,7 @@ pub fn router(state: AppState) -> Router {
         )
         .route("/v1/jobs", post(jobs::create).get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get))
+        .route("/v1/jobs/{id}/events", get(events::events))
         .route("/v1/jobs/{id}/cancel", post(jobs::cancel))
         .route("/v1/jobs/{id}/artifacts/{name}", get(jobs::artifact))
         .route("/healthz", get(health::healthz))
@@ -64,6 +71,10 @@ pub fn router(state: AppState) -> Router {
         .route("/metrics", get(health::metrics))
         .route("/openapi.yaml", get(openapi::serve_yaml))
         .fallback(fallback)
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::authenticate,
+        ))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             track_http,

@@ -3,13 +3,16 @@
 use axum::body::Body;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, StatusCode};
-use axum::response::IntoResponse;
+use axum::response::{IntoResponse, Response};
+use axum::Extension;
 use futures::StreamExt;
 use serde::Serialize;
+use sha2::{Digest, Sha256};
 use tokio::io::AsyncWriteExt;
 
+use super::auth::Caller;
 use super::capture::CaptureParams;
-use super::{ApiError, AppState};
+use super::{conditional, idempotency, ApiError, AppState};
 use crate::jobs::ingest::{prepare_scene, Cleanup};
 use crate::scene::archive::Limits;
 use crate::store::SceneRecord;
@@ -27,20 +30,129 @@ pub struct SceneList {
     responses(
         (status = 201, body = SceneRecord, headers(("Location" = String, description = "URL of the new scene"))),
         (status = 400, body = super::Problem, content_type = "application/problem+json"),
+        (status = 401, body = super::Problem, content_type = "application/problem+json"),
+        (status = 409, body = super::Problem, content_type = "application/problem+json", description = "idempotency_key_in_use"),
         (status = 413, body = super::Problem, content_type = "application/problem+json"),
         (status = 415, body = super::Problem, content_type = "application/problem+json"),
-        (status = 422, body = super::Problem, content_type = "application/problem+json")))]
+        (status = 422, body = super::Problem, content_type = "application/problem+json", description = "The scene is invalid, or idempotency_key_reused"),
+        (status = 429, body = super::Problem, content_type = "application/problem+json", headers(("Retry-After" = u64, description = "Seconds")))),
+    params(("Idempotency-Key" = Option<String>, Header, description = "Makes retries safe: the same key and body within 24 h replay the first answer")),
+    security((), ("bearer" = [])))]
 pub async fn upload(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Query(params): Query<CaptureParams>,
     headers: HeaderMap,
     body: Body,
-) -> Result<impl IntoResponse, ApiError> {
+) -> Result<Response, ApiError> {
     let capture = params.to_capture()?;
+    let idem_key = idempotency::key_of(&headers)?;
+    let limit = state.cfg.max_upload_bytes;
+    let used = match (caller.key_id, caller.max_scene_bytes) {
+        (Some(k), Some(_)) => state.store.scene_bytes_of(k).await?,
+        _ => 0,
+    };
+    let over_quota = |bytes: u64| {
+        caller
+            .max_scene_bytes
+            .filter(|max| used.saturating_add(bytes as i64) > *max)
+            .map(|max| {
+                ApiError::too_many(
+                    "quota_exceeded",
+                    format!("this key may store at most {max} bytes of scenes ({used} stored); delete scenes to make room"),
+                    QUOTA_RETRY_SECS,
+                )
+            })
+    };
+    let too_large = || {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "body_too_large",
+            format!("the upload exceeds the limit of {limit} bytes"),
+        )
+    };
+    if let Some(len) = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        if len > limit {
+            return Err(too_large());
+        }
+        if let Some(e) = over_quota(len) {
+            return Err(e);
+        }
+    }
+    let content_type = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string);
     let id = uuid::Uuid::now_v7().to_string();
-    let (upload_path, _upload_guard, content_type) = spool(&state, &headers, body, &id).await?;
     let tmp = state.cfg.data_dir.join("tmp");
+    tokio::fs::create_dir_all(&tmp)
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot create temp dir: {e}")))?;
+    let upload_path = tmp.join(format!("{id}.upload"));
+    let upload_guard = Cleanup(Some(upload_path.clone()));
 
+    // Spool the body to disk, counting bytes.
+    let mut file = tokio::fs::File::create(&upload_path)
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
+    let mut stream = body.into_data_stream();
+    let mut total: u64 = 0;
+    let mut hasher = Sha256::new();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| {
+            ApiError::bad_request(
+                "body_read_failed",
+                format!("the upload could not be read to the end: {e}"),
+            )
+        })?;
+        total += chunk.len() as u64;
+        if total > limit {
+            return Err(too_large());
+        }
+        if let Some(e) = over_quota(total) {
+            return Err(e);
+        }
+        hasher.update(&chunk);
+        file.write_all(&chunk)
+            .await
+            .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
+    }
+    file.flush()
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
+    drop(file);
+    let hash = hex::encode(hasher.finalize());
+    let st = state.clone();
+    let owner = caller.key_id;
+    idempotency::run(
+        &state,
+        &caller,
+        "POST /v1/scenes",
+        idem_key,
+        &hash,
+        async move {
+            let _upload_guard = upload_guard;
+            import(st, owner, id, upload_path, content_type, total, capture).await
+        },
+    )
+    .await
+}
+
+/// Unpack, validate and store a spooled upload.
+async fn import(
+    state: AppState,
+    owner: Option<i64>,
+    id: String,
+    upload_path: std::path::PathBuf,
+    content_type: Option<String>,
+    total: u64,
+    capture: crate::jobs::ingest::Capture,
+) -> Result<Response, ApiError> {
+    let tmp = state.cfg.data_dir.join("tmp");
     let limits = limits(&state);
     let work_dir = tmp.join(&id);
     let scene_dir = state.jobs.scene_dir(&id);
@@ -76,6 +188,8 @@ pub async fn upload(
             &scene,
             status,
             detector.filter(|_| status == "indexing"),
+            owner,
+            total,
         )
         .await?;
     scene_guard.disarm();
@@ -92,30 +206,57 @@ pub async fn upload(
         StatusCode::CREATED,
         [(header::LOCATION, format!("/v1/scenes/{id}"))],
         axum::Json(record),
-    ))
+    )
+        .into_response())
+}
+
+/// Suggested wait after a storage quota refusal.
+const QUOTA_RETRY_SECS: u64 = 60;
+
+/// A scene the caller may see (404 for other keys' scenes).
+async fn visible_scene(
+    state: &AppState,
+    caller: &Caller,
+    id: &str,
+) -> Result<SceneRecord, ApiError> {
+    state
+        .store
+        .get_scene(id)
+        .await?
+        .filter(|s| caller.sees(s.owner))
+        .ok_or_else(|| ApiError::not_found("scene", id))
 }
 
 /// List scenes.
-#[utoipa::path(get, path = "/v1/scenes", tag = "scenes", responses((status = 200, body = SceneList)))]
-pub async fn list(State(state): State<AppState>) -> Result<axum::Json<SceneList>, ApiError> {
+#[utoipa::path(get, path = "/v1/scenes", tag = "scenes", responses((status = 200, body = SceneList),
+    (status = 401, body = super::Problem, content_type = "application/problem+json")), security((), ("bearer" = [])))]
+pub async fn list(
+    State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
+) -> Result<axum::Json<SceneList>, ApiError> {
     Ok(axum::Json(SceneList {
-        scenes: state.store.list_scenes().await?,
+        scenes: state.store.list_scenes(caller.list_filter()).await?,
     }))
 }
 
 /// One scene.
-#[utoipa::path(get, path = "/v1/scenes/{id}", tag = "scenes", params(("id" = String, Path)),
-    responses((status = 200, body = SceneRecord), (status = 404, body = super::Problem, content_type = "application/problem+json")))]
+#[utoipa::path(get, path = "/v1/scenes/{id}", tag = "scenes",
+    params(("id" = String, Path), ("If-None-Match" = Option<String>, Header, description = "An ETag of this scene: 304 while it is current")),
+    responses((status = 200, body = SceneRecord, headers(("ETag" = String))),
+              (status = 304, description = "Not modified", headers(("ETag" = String))),
+              (status = 401, body = super::Problem, content_type = "application/problem+json"),
+              (status = 404, body = super::Problem, content_type = "application/problem+json")),
+    security((), ("bearer" = [])))]
 pub async fn get(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-) -> Result<axum::Json<SceneRecord>, ApiError> {
-    state
-        .store
-        .get_scene(&id)
-        .await?
-        .map(axum::Json)
-        .ok_or_else(|| ApiError::not_found("scene", &id))
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let scene = visible_scene(&state, &caller, &id).await?;
+    let body = serde_json::to_vec(&scene)
+        .map_err(|e| ApiError::internal(format!("cannot encode scene: {e}")))?;
+    Ok(conditional::json_with_etag(&headers, body, None))
 }
 
 /// Delete a scene and its files (409 while a job on it runs; queued jobs are canceled).
@@ -124,11 +265,10 @@ pub async fn get(
               (status = 409, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn delete(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<StatusCode, ApiError> {
-    if state.store.get_scene(&id).await?.is_none() {
-        return Err(ApiError::not_found("scene", &id));
-    }
+    visible_scene(&state, &caller, &id).await?;
     if !state.store.delete_scene_if_idle(&id).await? {
         return Err(ApiError::new(
             StatusCode::CONFLICT,
@@ -149,13 +289,10 @@ pub async fn delete(
               (status = 409, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn reindex(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<(StatusCode, axum::Json<SceneRecord>), ApiError> {
-    let scene = state
-        .store
-        .get_scene(&id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("scene", &id))?;
+    let scene = visible_scene(&state, &caller, &id).await?;
     if scene.status == "indexing" {
         return Err(ApiError::new(
             StatusCode::CONFLICT,

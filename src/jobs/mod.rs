@@ -4,6 +4,7 @@
 pub mod indexing;
 pub mod ingest;
 pub mod test_grounder;
+pub mod webhooks;
 pub mod worker;
 
 use futures::future::BoxFuture;

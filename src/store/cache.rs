@@ -75,6 +75,8 @@ mod tests {
             finished_at: None,
             error: None,
             result: None,
+            owner: None,
+            webhook_url: None,
         }
     }
 

@@ -63,11 +63,28 @@ pub struct JobRecord {
     pub finished_at: Option<String>,
     pub error: Option<Value>,
     pub result: Option<Value>,
+    /// The API key that created the job (None: created without keys).
+    pub owner: Option<i64>,
+    pub webhook_url: Option<String>,
+}
+
+/// Jobs to create at once (one per query, same scene).
+#[derive(Debug, Clone)]
+pub struct NewJobs<'a> {
+    /// (id, query) per job, in the order the caller wants them back.
+    pub jobs: Vec<(String, String)>,
+    pub scene_id: &'a str,
+    pub owner: Option<i64>,
+    pub webhook_url: Option<&'a str>,
+    /// Refuse (return None) when the owner would have more queued + running jobs.
+    pub max_active: Option<i64>,
 }
 
 /// Filters for listing jobs.
 #[derive(Debug, Clone, Default)]
 pub struct ListJobs {
+    /// Only this owner's jobs (None: everyone's).
+    pub owner: Option<i64>,
     pub scene_id: Option<String>,
     pub status: Option<JobStatus>,
     pub limit: i64,
@@ -94,10 +111,12 @@ fn job_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<JobRecord, StoreError> {
         finished_at: r.try_get("finished_at")?,
         error: parse_json(r.try_get("error")?),
         result: parse_json(r.try_get("result")?),
+        owner: r.try_get("owner")?,
+        webhook_url: r.try_get("webhook_url")?,
     })
 }
 
-const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result";
+const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result, owner, webhook_url";
 
 impl Store {
     pub async fn create_job(
@@ -115,8 +134,53 @@ impl Store {
             .bind(now_rfc3339())
             .fetch_one(&self.pool)
             .await;
-        self.job_cache.invalidate();
+        self.job_written(id);
         job_from_row(&r?)
+    }
+
+    /// Create several queued jobs in one statement, unless that would take the owner over
+    /// `max_active` queued + running jobs (then `Ok(None)` and nothing is created).
+    pub async fn create_jobs(&self, n: &NewJobs<'_>) -> Result<Option<Vec<JobRecord>>, StoreError> {
+        if n.jobs.is_empty() {
+            return Ok(Some(Vec::new()));
+        }
+        let values = vec!["(?,?)"; n.jobs.len()].join(",");
+        let sql = format!(
+            "INSERT INTO jobs (id, scene_id, query, status, created_at, owner, webhook_url) \
+             SELECT column1, ?, column2, 'queued', ?, ?, ? FROM (VALUES {values}) \
+             WHERE ? IS NULL OR (SELECT COUNT(*) FROM jobs WHERE owner IS ? AND status IN ('queued','running')) + ? <= ? \
+             ORDER BY 1 RETURNING {JOB_COLS}"
+        );
+        let mut q = sqlx::query(&sql)
+            .bind(n.scene_id)
+            .bind(now_rfc3339())
+            .bind(n.owner)
+            .bind(n.webhook_url);
+        for (id, query) in &n.jobs {
+            q = q.bind(id).bind(query);
+        }
+        let r = q
+            .bind(n.max_active)
+            .bind(n.owner)
+            .bind(n.jobs.len() as i64)
+            .bind(n.max_active)
+            .fetch_all(&self.pool)
+            .await;
+        self.job_cache.invalidate();
+        let rows = r?;
+        if rows.is_empty() {
+            return Ok(None);
+        }
+        let mut recs = rows
+            .iter()
+            .map(job_from_row)
+            .collect::<Result<Vec<_>, _>>()?;
+        let order = |id: &str| n.jobs.iter().position(|(j, _)| j == id);
+        recs.sort_by_key(|r| order(&r.id));
+        for r in &recs {
+            self.events.changed(&r.id);
+        }
+        Ok(Some(recs))
     }
 
     pub async fn get_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
@@ -131,12 +195,13 @@ impl Store {
     pub async fn list_jobs(&self, q: &ListJobs) -> Result<Vec<JobRecord>, StoreError> {
         let rows = sqlx::query(&format!(
             "SELECT {JOB_COLS} FROM jobs WHERE (?1 IS NULL OR scene_id = ?1) AND (?2 IS NULL OR status = ?2) \
-             AND (?3 IS NULL OR seq < ?3) ORDER BY seq DESC LIMIT ?4"
+             AND (?3 IS NULL OR seq < ?3) AND (?5 IS NULL OR owner = ?5) ORDER BY seq DESC LIMIT ?4"
         ))
         .bind(&q.scene_id)
         .bind(q.status.map(|s| s.as_str()))
         .bind(q.before_seq)
         .bind(q.limit)
+        .bind(q.owner)
         .fetch_all(&self.pool)
         .await?;
         rows.iter().map(job_from_row).collect()
@@ -147,6 +212,9 @@ impl Store {
     pub async fn claim_next_job(&self) -> Result<Option<JobRecord>, StoreError> {
         let r = self.claim_next_job_tx().await;
         self.job_cache.invalidate();
+        if let Ok(Some(j)) = &r {
+            self.events.changed(&j.id);
+        }
         r
     }
 
@@ -190,7 +258,7 @@ impl Store {
             .bind(id)
             .execute(&self.pool)
             .await;
-        self.job_cache.invalidate();
+        self.job_written(id);
         Ok(r?.rows_affected() == 1)
     }
 
@@ -216,7 +284,7 @@ impl Store {
             .bind(id)
             .execute(&self.pool)
             .await;
-        self.job_cache.invalidate();
+        self.job_written(id);
         r?;
         Ok(())
     }
@@ -232,7 +300,7 @@ impl Store {
         .bind(id)
         .execute(&self.pool)
         .await;
-        self.job_cache.invalidate();
+        self.job_written(id);
         r?;
         self.get_job(id).await
     }
@@ -242,6 +310,7 @@ impl Store {
     pub async fn recover_jobs(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
         let r = self.recover_jobs_sql(max_attempts).await;
         self.job_cache.invalidate();
+        self.events.changed_all();
         r
     }
 
@@ -287,7 +356,7 @@ impl Store {
             .bind(data.to_string())
             .execute(&self.pool)
             .await;
-        self.job_cache.invalidate();
+        self.job_written(job_id);
         r?;
         Ok(())
     }

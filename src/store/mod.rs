@@ -1,9 +1,13 @@
 //! The embedded SQLite store (WAL mode, migrations from `migrations/`).
 
 pub mod cache;
+pub mod events;
 pub mod frames;
+pub mod idempotency;
 pub mod jobs;
+pub mod keys;
 pub mod scenes;
+pub mod webhooks;
 
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
 use sqlx::SqlitePool;
@@ -11,7 +15,8 @@ use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 
-pub use jobs::{JobRecord, JobStatus, ListJobs};
+pub use jobs::{JobRecord, JobStatus, ListJobs, NewJobs};
+pub use keys::{KeyRecord, KeySpec, NewKey};
 pub use scenes::SceneRecord;
 
 /// Handle to the database; cheap to clone.
@@ -20,6 +25,8 @@ pub struct Store {
     pub pool: SqlitePool,
     /// Polled jobs, valid until the next job write (see [`cache`]).
     pub(crate) job_cache: std::sync::Arc<cache::JobCache>,
+    /// Wakes whoever waits on a job's changes (long polls, event streams).
+    pub events: std::sync::Arc<events::Hub>,
 }
 
 /// Errors from the store.
@@ -55,7 +62,14 @@ impl Store {
         Ok(Self {
             pool,
             job_cache: Default::default(),
+            events: Default::default(),
         })
+    }
+
+    /// After a write to one job: drop cached reads and wake its waiters.
+    pub(crate) fn job_written(&self, id: &str) {
+        self.job_cache.invalidate();
+        self.events.changed(id);
     }
 
     /// True when a trivial query succeeds.

@@ -44,6 +44,9 @@ pub struct SceneRecord {
     pub created_at: String,
     /// Bumped on every change of the scene's frames (appended or removed).
     pub revision: i64,
+    /// The API key that uploaded the scene (not shown).
+    #[serde(skip)]
+    pub owner: Option<i64>,
 }
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -70,13 +73,15 @@ impl Store {
         scene: &ImportedScene,
         status: &str,
         detector: Option<&str>,
+        owner: Option<i64>,
+        upload_bytes: u64,
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
         let usable = scene.frames.iter().filter(|f| f.usable).count() as i64;
         sqlx::query(
             "INSERT INTO scenes (id, name, layout, status, color_width, color_height, depth_width, depth_height, \
-             color_k, depth_k, axis_align, has_instances, frame_count, unusable_count, index_detector, index_done, index_total, created_at) \
-             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?)",
+             color_k, depth_k, axis_align, has_instances, frame_count, unusable_count, index_detector, index_done, index_total, created_at, owner, upload_bytes) \
+             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?,?,?)",
         )
         .bind(id)
         .bind(&scene.name)
@@ -99,6 +104,8 @@ impl Store {
         .bind(detector)
         .bind(if detector.is_some() { usable } else { 0 })
         .bind(now_rfc3339())
+        .bind(owner)
+        .bind(upload_bytes as i64)
         .execute(&mut *tx)
         .await?;
         for f in &scene.frames {
@@ -138,6 +145,7 @@ impl Store {
             error: row.try_get("error")?,
             created_at: row.try_get("created_at")?,
             revision: row.try_get("revision")?,
+            owner: row.try_get("owner")?,
         })
     }
 
@@ -164,10 +172,14 @@ impl Store {
         Ok(Some(Self::scene_from_row(&row, unusable)?))
     }
 
-    pub async fn list_scenes(&self) -> Result<Vec<SceneRecord>, StoreError> {
-        let rows = sqlx::query("SELECT * FROM scenes ORDER BY created_at, id")
-            .fetch_all(&self.pool)
-            .await?;
+    /// Scenes, oldest first; only `owner`'s when given.
+    pub async fn list_scenes(&self, owner: Option<i64>) -> Result<Vec<SceneRecord>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT * FROM scenes WHERE ?1 IS NULL OR owner = ?1 ORDER BY created_at, id",
+        )
+        .bind(owner)
+        .fetch_all(&self.pool)
+        .await?;
         let mut out = Vec::with_capacity(rows.len());
         for row in &rows {
             let id: String = row.try_get("id")?;
@@ -181,6 +193,7 @@ impl Store {
         // Cancels and deletes the scene's jobs.
         let r = self.delete_scene_if_idle_tx(id).await;
         self.job_cache.invalidate();
+        self.events.changed_all();
         r
     }
 

@@ -186,3 +186,80 @@ pub fn zip_of(files: &[(String, Vec<u8>)]) -> Vec<u8> {
     }
     z.finish().expect("zip finish").into_inner()
 }
+
+/// Create an API key in a data dir (as `grounder keys create` does): (secret, whsec).
+pub async fn create_key(
+    data_dir: &std::path::Path,
+    name: &str,
+    admin: bool,
+    max_running_jobs: Option<i64>,
+    max_scene_bytes: Option<i64>,
+) -> (String, String) {
+    let store = grounder::store::Store::open(data_dir).await.expect("store");
+    let k = store
+        .create_key(&grounder::store::KeySpec {
+            name: name.into(),
+            admin,
+            max_running_jobs,
+            max_scene_bytes,
+        })
+        .await
+        .expect("create key")
+        .expect("a new name");
+    store.pool.close().await;
+    (k.secret, k.webhook_secret)
+}
+
+/// A client whose every request carries `Authorization: Bearer <secret>`.
+pub fn client_with_key(secret: &str) -> reqwest::Client {
+    let mut h = reqwest::header::HeaderMap::new();
+    h.insert(
+        reqwest::header::AUTHORIZATION,
+        format!("Bearer {secret}").parse().expect("header"),
+    );
+    reqwest::Client::builder()
+        .default_headers(h)
+        .build()
+        .expect("client")
+}
+
+/// One Server-Sent Event as received.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sse {
+    pub id: Option<String>,
+    pub event: String,
+    pub data: serde_json::Value,
+}
+
+/// Read a whole event stream (until the server closes it) and parse its events.
+pub async fn read_sse(resp: reqwest::Response) -> Vec<Sse> {
+    let text = tokio::time::timeout(Duration::from_secs(20), resp.text())
+        .await
+        .expect("the stream ends")
+        .expect("stream body");
+    let mut out = Vec::new();
+    for block in text.split("\n\n") {
+        let (mut id, mut event, mut data) = (None, String::from("message"), String::new());
+        let mut any = false;
+        for line in block.lines() {
+            if let Some(v) = line.strip_prefix("id:") {
+                id = Some(v.trim().to_string());
+                any = true;
+            } else if let Some(v) = line.strip_prefix("event:") {
+                event = v.trim().to_string();
+                any = true;
+            } else if let Some(v) = line.strip_prefix("data:") {
+                data.push_str(v.strip_prefix(' ').unwrap_or(v));
+                any = true;
+            }
+        }
+        if any && !data.is_empty() {
+            out.push(Sse {
+                id,
+                event,
+                data: serde_json::from_str(&data).expect("event data is JSON"),
+            });
+        }
+    }
+    out
+}

@@ -3,16 +3,22 @@
 //! against a scripted fake VLM, covering every feedback path, retries, the retry limit
 //! and cancellation.
 
+mod bench_sse;
+mod events;
 mod format_writers;
 mod formats;
 mod formats_bench;
 mod frames;
 mod helpers;
 mod hostile;
+mod idempotency;
 mod jobs;
+mod keys;
 mod openapi;
+mod polling;
 mod restart;
 mod scenes;
+mod webhooks;
 
 mod agent_fixture;
 mod agent_paths;

@@ -1,0 +1,179 @@
+//! Issue 19: ETag / If-None-Match, `Prefer: wait=N`, and batches of queries.
+
+use crate::helpers::*;
+use serde_json::{json, Value};
+use std::time::{Duration, Instant};
+
+async fn scene(app: &TestApp) -> String {
+    let r = app
+        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
+        .await;
+    r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+async fn cond_get(app: &TestApp, path: &str, etag: &str) -> reqwest::Response {
+    app.client
+        .get(app.url(path))
+        .header("if-none-match", etag)
+        .send()
+        .await
+        .unwrap()
+}
+
+#[tokio::test]
+async fn etags_answer_304_until_the_job_or_scene_changes() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    let r = app
+        .client
+        .get(app.url(&format!("/v1/scenes/{sid}")))
+        .send()
+        .await
+        .unwrap();
+    let tag = r.headers()["etag"].to_str().unwrap().to_string();
+    let r = cond_get(&app, &format!("/v1/scenes/{sid}"), &tag).await;
+    assert_eq!(r.status().as_u16(), 304);
+    assert_eq!(r.headers()["etag"].to_str().unwrap(), tag);
+    assert!(r.bytes().await.unwrap().is_empty(), "304 has no body");
+    let r = cond_get(&app, &format!("/v1/scenes/{sid}"), "\"stale\"").await;
+    assert_eq!(r.status().as_u16(), 200);
+
+    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
+    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let r = app.client.get(app.url(&path)).send().await.unwrap();
+    let tag = r.headers()["etag"].to_str().unwrap().to_string();
+    let first: Value = r.json().await.unwrap();
+    let done = app
+        .wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
+        .await;
+    assert_eq!(done["status"], "succeeded");
+    // Changed since: 200 with a new tag; then 304 with that tag.
+    let r = cond_get(&app, &path, &tag).await;
+    assert_eq!(r.status().as_u16(), 200, "first seen {first}");
+    let tag2 = r.headers()["etag"].to_str().unwrap().to_string();
+    assert_ne!(tag, tag2);
+    let r = cond_get(&app, &path, &tag2).await;
+    assert_eq!(r.status().as_u16(), 304);
+    let r = cond_get(&app, &path, &format!("\"x\", W/{tag2}")).await;
+    assert_eq!(r.status().as_u16(), 304, "weak comparison, lists");
+    app.stop().await;
+}
+
+#[tokio::test]
+async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path().to_path_buf());
+    cfg.pipeline = "test:delay_ms=1500".into();
+    let app = TestApp::spawn_with(cfg).await;
+    let sid = scene(&app).await;
+    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
+    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let started = Instant::now();
+    let r = app
+        .client
+        .get(app.url(&path))
+        .header("prefer", "wait=30")
+        .send()
+        .await
+        .unwrap();
+    let answered = time::OffsetDateTime::now_utc();
+    let took = started.elapsed();
+    assert_eq!(r.status().as_u16(), 200);
+    assert_eq!(r.headers()["preference-applied"], "wait=30");
+    let job: Value = r.json().await.unwrap();
+    assert_eq!(job["status"], "succeeded", "returned when the job ended");
+    let finished = time::OffsetDateTime::parse(
+        job["finished_at"].as_str().unwrap(),
+        &time::format_description::well_known::Rfc3339,
+    )
+    .unwrap();
+    let lag = (answered - finished).whole_milliseconds();
+    assert!(
+        (0..100).contains(&lag),
+        "answered {lag} ms after the job ended"
+    );
+    assert!(took >= Duration::from_millis(1000), "it did wait: {took:?}");
+
+    // A running job past N seconds comes back with its current state.
+    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
+    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let started = Instant::now();
+    let r = app
+        .client
+        .get(app.url(&path))
+        .header("prefer", "wait=1")
+        .send()
+        .await
+        .unwrap();
+    let took = started.elapsed();
+    assert_eq!(r.headers()["preference-applied"], "wait=1");
+    let v: Value = r.json().await.unwrap();
+    assert!(
+        matches!(v["status"].as_str(), Some("queued" | "running")),
+        "{v}"
+    );
+    assert!(
+        (Duration::from_millis(950)..Duration::from_millis(1400)).contains(&took),
+        "{took:?}"
+    );
+    // Without the preference, no header and no wait.
+    let r = app.client.get(app.url(&path)).send().await.unwrap();
+    assert!(!r.headers().contains_key("preference-applied"));
+    app.stop().await;
+}
+
+#[tokio::test]
+async fn a_batch_of_queries_makes_one_job_each_in_order() {
+    let app = TestApp::spawn().await;
+    let sid = scene(&app).await;
+    let queries = ["the lamp", "the sofa", "the chair", "[fail] the bed"];
+    let r = app
+        .client
+        .post(app.url("/v1/jobs"))
+        .json(&json!({"scene_id": sid, "queries": queries}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let v: Value = r.json().await.unwrap();
+    let jobs = v["jobs"].as_array().unwrap();
+    let got: Vec<&str> = jobs.iter().map(|j| j["query"].as_str().unwrap()).collect();
+    assert_eq!(got, queries);
+    for j in jobs {
+        assert_eq!(j["status"], "queued");
+        let done = app
+            .wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
+            .await;
+        let want = if j["query"].as_str().unwrap().contains("[fail]") {
+            "failed"
+        } else {
+            "succeeded"
+        };
+        assert_eq!(done["status"], want);
+    }
+    for bad in [
+        json!({"scene_id": sid, "queries": []}),
+        json!({"scene_id": sid, "queries": ["a", " "]}),
+        json!({"scene_id": sid, "query": "a", "queries": ["b"]}),
+        json!({"scene_id": sid}),
+    ] {
+        let r = app
+            .client
+            .post(app.url("/v1/jobs"))
+            .json(&bad)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 400, "{bad}");
+    }
+    let (_, l) = app.get_json("/v1/jobs").await;
+    assert_eq!(
+        l["jobs"].as_array().unwrap().len(),
+        4,
+        "refused batches made nothing"
+    );
+    app.stop().await;
+}
