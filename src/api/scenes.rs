@@ -128,6 +128,7 @@ pub async fn upload(
         (state.on_scene_stored)(id.clone());
     } else {
         state.jobs.wake();
+        state.jobs.warm_scene_points(&id);
     }
     let record = record?.ok_or_else(|| ApiError::internal("scene vanished after insert"))?;
     Ok((
