@@ -48,18 +48,17 @@ export async function api(path, as = 'json') {
   return r.arrayBuffer();
 }
 
-// An <img> for an API image (fetched with the key, when there is one); null when missing.
-export async function image(path) {
-  try {
-    const blob = await api(path, 'blob');
+// An <img> for an API image, loaded (null when missing). Without a key the browser loads
+// the URL itself; with one, it is fetched with the key and shown from a blob.
+export function image(path) {
+  return new Promise((resolve, reject) => {
     const img = new Image();
-    img.src = URL.createObjectURL(blob);
-    await img.decode();
-    return img;
-  } catch (e) {
-    if (e.status === 404) return null;
-    throw e;
-  }
+    img.onload = () => resolve(img);
+    img.onerror = () => resolve(null);
+    if (!apiKey()) { img.src = path; return; }
+    api(path, 'blob').then((b) => { img.src = URL.createObjectURL(b); })
+      .catch((e) => (e.status === 404 ? resolve(null) : reject(e)));
+  });
 }
 
 // Follow a job until it is terminal, calling onUpdate(job) whenever its trace or status

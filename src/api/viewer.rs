@@ -107,13 +107,20 @@ pub async fn scene_page(
     responses((status = 200, content_type = "text/javascript", body = String),
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn asset(Path(file): Path<String>) -> Result<Response, ApiError> {
-    let (_, ct, bytes) = ASSETS.iter().find(|(n, _, _)| *n == file).ok_or_else(|| {
+    let (name, ct, bytes) = ASSETS.iter().find(|(n, _, _)| *n == file).ok_or_else(|| {
         ApiError::new(
             StatusCode::NOT_FOUND,
             "asset_not_found",
             format!("the viewer has no file {file:?}"),
         )
     })?;
+    // For work on the pages: GROUNDER_VIEWER_DIR=assets/viewer serves the scripts from
+    // disk (not the vendored libraries), so a change needs no rebuild.
+    if let Some(dir) = std::env::var_os("GROUNDER_VIEWER_DIR") {
+        if let Ok(b) = tokio::fs::read(std::path::Path::new(&dir).join(name)).await {
+            return Ok(([(header::CONTENT_TYPE, *ct)], b).into_response());
+        }
+    }
     Ok((
         [
             (header::CONTENT_TYPE, *ct),

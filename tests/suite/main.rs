@@ -15,6 +15,7 @@ mod stitch_retrieval;
 mod synth_backproject;
 mod synth_output;
 mod synth_queries;
+mod viewer;
 mod vision_centernet;
 mod vision_depth_seg;
 mod vision_sam;
