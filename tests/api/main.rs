@@ -8,6 +8,7 @@ mod jobs;
 mod openapi;
 mod restart;
 mod scenes;
+mod viewer;
 
 mod agent_fixture;
 mod agent_paths;
