@@ -122,13 +122,16 @@ pub fn color_points(
         .collect()
 }
 
+/// A voxel's first point index (for a stable order), position sum, colour sum and count.
+type VoxelSums = (usize, [f64; 3], [u64; 3], u64);
+
 /// One point per occupied voxel of side `voxel` (m): the mean position and mean colour of
 /// the points in it, in a deterministic order. `voxel <= 0` returns the points unchanged.
 pub fn voxel_downsample_colored(points: &[ColoredPoint], voxel: f64) -> Vec<ColoredPoint> {
     if voxel <= 0.0 || !voxel.is_finite() {
         return points.to_vec();
     }
-    let mut cells: HashMap<(i64, i64, i64), (usize, [f64; 3], [u64; 3], u64)> = HashMap::new();
+    let mut cells: HashMap<(i64, i64, i64), VoxelSums> = HashMap::new();
     for (k, (p, c)) in points.iter().enumerate() {
         let key = (
             (p.x / voxel).floor() as i64,
