@@ -38,6 +38,10 @@ pub enum Command {
     Openapi,
     /// Manage API keys (create, list, revoke, webhook-secret).
     Keys(crate::keys::KeysArgs),
+    /// Ground sentences in a scene on a running service (exit 0 found, 1 failed, 2 error).
+    Ground(crate::client::ground::GroundArgs),
+    /// Run the whole service on a small synthetic scene with an oracle VLM: no key needed.
+    Demo(crate::client::demo::DemoArgs),
 }
 
 /// Parse arguments, run the subcommand, print a one-line error on failure.
@@ -55,25 +59,29 @@ pub fn main() -> ExitCode {
         }
     };
     let result = rt.block_on(async move {
+        let done = |r: anyhow::Result<()>| r.map(|()| ExitCode::SUCCESS);
         match cli.command {
-            Command::Serve(a) => crate::startup::serve(a).await,
-            Command::Synth(a) => crate::synth::cli::run(a),
-            Command::StitchPlan(a) => crate::stitch::cli::run_plan(a),
-            Command::RetrievalBench(a) => crate::stitch::cli::run_retrieval_bench(a).await,
-            Command::Detect(a) => crate::vision::cli::run(a),
-            Command::Candidates(a) => crate::vision::candidates_cli::run(a),
-            Command::OracleVlm(a) => crate::eval::cli::run_oracle_vlm(a).await,
-            Command::Eval(a) => crate::eval::cli::run_eval(a).await,
-            Command::Convert(a) => crate::eval::cli::run_convert(a),
-            Command::Keys(a) => crate::keys::run(a).await,
+            // These two choose their own exit codes (0 found, 1 job failed, 2 error).
+            Command::Ground(a) => Ok(crate::client::ground::run(a).await),
+            Command::Demo(a) => Ok(crate::client::demo::run(a).await),
+            Command::Serve(a) => done(crate::startup::serve(a).await),
+            Command::Synth(a) => done(crate::synth::cli::run(a)),
+            Command::StitchPlan(a) => done(crate::stitch::cli::run_plan(a)),
+            Command::RetrievalBench(a) => done(crate::stitch::cli::run_retrieval_bench(a).await),
+            Command::Detect(a) => done(crate::vision::cli::run(a)),
+            Command::Candidates(a) => done(crate::vision::candidates_cli::run(a)),
+            Command::OracleVlm(a) => done(crate::eval::cli::run_oracle_vlm(a).await),
+            Command::Eval(a) => done(crate::eval::cli::run_eval(a).await),
+            Command::Convert(a) => done(crate::eval::cli::run_convert(a)),
+            Command::Keys(a) => done(crate::keys::run(a).await),
             Command::Openapi => {
                 print!("{}", crate::api::openapi::yaml());
-                Ok(())
+                Ok(ExitCode::SUCCESS)
             }
         }
     });
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             // One line: the chain of causes joined.
             let msg = e

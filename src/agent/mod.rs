@@ -3,6 +3,7 @@
 //! (→ instance selection) → segmentation + multi-view ensemble projection.
 //! Every stage appends a step `{step, inputs, outputs, ms}` to the job's trace.
 
+pub mod exports;
 pub mod grounding;
 pub mod instance;
 pub mod marks;
@@ -212,6 +213,14 @@ impl VlmGrounder {
         extra.insert("views_used".into(), json!(projected.views_used));
         extra.insert("usage".into(), json!({"vlm_calls": budget.calls_used(), "total_tokens": usage.total, "prompt_tokens": usage.prompt, "completion_tokens": usage.completion}));
         extra.insert("stats".into(), summary);
+        // The box in the scene's own frame when boxes come back axis-aligned.
+        if let Some(b) = ctx
+            .scene
+            .axis_align
+            .and_then(|a| crate::geometry::export::box_in_scene_frame(&projected.bbox, &a))
+        {
+            extra.insert("box_scene_frame".into(), json!(b));
+        }
         Ok(GroundingOutput {
             bbox: projected.bbox,
             extra,

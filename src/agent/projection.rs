@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
-use super::{ms, step, VlmGrounder};
+use super::{exports, ms, step, VlmGrounder};
 use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use crate::geometry::ensemble::{
     chamfer_decisions, find_views_with_room, fuse_clouds, mask_points, single_view_box,
@@ -319,8 +319,9 @@ pub async fn run(
         layout,
     );
     let anchor_idx = choice.frame_idx;
+    let anchor_image = choice.image.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
-    let (fusion, single, support, votes, fills, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
+    let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
         use rayon::prelude::*;
         let ts = Instant::now();
         let segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
@@ -391,7 +392,16 @@ pub async fn run(
             (b, moved, planar)
         });
         let support_ms = ms(tsup);
-        (fusion, single_view_box(&anchor_pts, &params), support, votes, fills, [segment_ms, fuse_ms, support_ms])
+        // The masks of the views used and the object's points, for the exports.
+        let mut mask_files = vec![(anchor_idx, exports::mask_png(&anchor_mask))];
+        for ((i, _), m) in other_pts.iter().zip(&masks) {
+            if fusion.views.iter().any(|v| v.index == *i && v.kept) {
+                mask_files.push((*i, exports::mask_png(m)));
+            }
+        }
+        let object = exports::object_ply(&fusion.kept, &af.camera, &anchor_image);
+        let exports = exports::Exports { masks: mask_files, object };
+        (fusion, single_view_box(&anchor_pts, &params), support, votes, fills, exports, [segment_ms, fuse_ms, support_ms])
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
@@ -399,6 +409,7 @@ pub async fn run(
         JobFailure::new("projection_failed", "no points survived outlier removal")
     })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
+    let exported = exports::store(ctx, exports).await?;
     let view_json: Vec<_> = views
         .iter()
         .zip(&view_boxes)
@@ -412,7 +423,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded,
+        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

@@ -5,12 +5,14 @@ pub mod capture;
 pub mod conditional;
 pub mod error;
 pub mod events;
+pub mod exports;
 pub mod frames;
 pub mod health;
 pub mod idempotency;
 pub mod jobs;
 pub mod openapi;
 pub mod scenes;
+pub mod viewer;
 
 use axum::extract::{MatchedPath, Request, State};
 use axum::middleware::Next;
@@ -66,6 +68,14 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/jobs/{id}/events", get(events::events))
         .route("/v1/jobs/{id}/cancel", post(jobs::cancel))
         .route("/v1/jobs/{id}/artifacts/{name}", get(jobs::artifact))
+        .route("/v1/jobs/{id}/object.ply", get(exports::object_ply))
+        .route("/v1/jobs/{id}/masks/{file}", get(exports::mask_png))
+        .route("/v1/jobs/{id}/view", get(viewer::job_page))
+        .route("/v1/scenes/{id}/points.ply", get(exports::scene_points))
+        .route("/v1/scenes/{id}/frames", get(exports::scene_frames))
+        .route("/v1/scenes/{id}/frames/{file}", get(exports::frame_jpeg))
+        .route("/v1/scenes/{id}/view", get(viewer::scene_page))
+        .route("/v1/viewer/{file}", get(viewer::asset))
         .route("/healthz", get(health::healthz))
         .route("/readyz", get(health::readyz))
         .route("/metrics", get(health::metrics))

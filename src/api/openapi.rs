@@ -10,13 +10,16 @@ use utoipa::OpenApi;
     paths(
         super::scenes::upload, super::scenes::list, super::scenes::get, super::scenes::delete, super::scenes::reindex, super::frames::append, super::frames::remove,
         super::jobs::create, super::jobs::list, super::jobs::get, super::events::events, super::jobs::cancel, super::jobs::artifact,
+        super::exports::object_ply, super::exports::mask_png, super::exports::scene_points, super::exports::scene_frames, super::exports::frame_jpeg,
+        super::viewer::job_page, super::viewer::scene_page, super::viewer::asset,
         super::health::healthz, super::health::readyz, super::health::metrics,
     ),
     components(schemas(super::Problem, crate::store::SceneRecord, crate::store::scenes::IndexProgress, super::scenes::SceneList,
         super::jobs::Job, super::jobs::JobList, super::jobs::CreateJob, super::jobs::JobBatch, super::jobs::Created,
-        super::jobs::WebhookInfo, crate::store::webhooks::Delivery, crate::store::JobStatus, super::health::Health)),
+        super::jobs::WebhookInfo, crate::store::webhooks::Delivery, crate::store::JobStatus, super::health::Health,
+        super::exports::FrameList, crate::jobs::exports::FrameInfo)),
     modifiers(&BearerAuth),
-    tags((name = "scenes", description = "Posed RGB-D scenes"), (name = "jobs", description = "Grounding jobs"), (name = "health", description = "Operations"))
+    tags((name = "scenes", description = "Posed RGB-D scenes"), (name = "jobs", description = "Grounding jobs"), (name = "exports", description = "3D points, masks and frames for viewers and robots"), (name = "viewer", description = "HTML pages to inspect scenes and jobs"), (name = "health", description = "Operations"))
 )]
 pub struct ApiDoc;
 

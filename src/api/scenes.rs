@@ -200,6 +200,7 @@ async fn import(
         (state.on_scene_stored)(id.clone(), 0);
     } else {
         state.jobs.wake();
+        state.jobs.warm_scene_points(&id);
     }
     let record = record?.ok_or_else(|| ApiError::internal("scene vanished after insert"))?;
     Ok((

@@ -153,6 +153,9 @@ pub struct FusionResult {
     pub carved_points: usize,
     /// Points after outlier removal.
     pub kept_points: usize,
+    /// Those points (the object's fused points).
+    #[serde(skip)]
+    pub kept: Vec<Point3<f64>>,
     /// Voxel size (m) finally used on the union (0 = none).
     pub fusion_voxel: f64,
     pub views: Vec<ViewDecision>,
@@ -253,6 +256,7 @@ pub fn fuse_clouds(
         fused_points,
         carved_points,
         kept_points: kept.len(),
+        kept,
         fusion_voxel: voxel.max(0.0),
         views,
     }

@@ -17,6 +17,7 @@ pub mod cloud;
 pub mod consensus;
 pub mod depth_fill;
 pub mod ensemble;
+pub mod export;
 pub mod layout;
 pub mod mask;
 pub mod morph;

@@ -113,6 +113,9 @@ pub fn hook(
         );
         tokio::spawn(async move {
             let outcome = index_scene(&store, &jobs, &scene_id, &key, detector, cands, from).await;
+            if outcome.is_ok() {
+                jobs.warm_scene_points(&scene_id);
+            }
             let (status, err) = match outcome {
                 Ok(()) => ("ready", None),
                 Err(e) => ("failed", Some(format!("{e:#}"))),

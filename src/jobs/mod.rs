@@ -1,6 +1,7 @@
 //! The job system: a persistent queue in SQLite, a worker pool, cancellation, traces.
 //! The pipeline itself is behind the [`Grounder`] trait.
 
+pub mod exports;
 pub mod indexing;
 pub mod ingest;
 pub mod test_grounder;
@@ -48,6 +49,15 @@ impl JobFailure {
     }
 }
 
+/// Artifact name of the object's fused points (binary PLY), served at `object.ply`.
+pub const OBJECT_PLY: &str = "object.ply";
+
+/// Artifact name of a view's mask (PNG), by the five-digit image id of the trace; served at
+/// `masks/{image_id}.png`.
+pub fn mask_artifact(image_id: &str) -> String {
+    format!("mask_{image_id}.png")
+}
+
 /// Writes a job's trace steps and artifacts.
 #[derive(Debug, Clone)]
 pub struct TraceSink {
@@ -86,9 +96,14 @@ impl TraceSink {
         }
         let dir = self.artifact_dir.clone();
         let path = dir.join(name);
+        // Written beside its final name and renamed, so a reader never sees half a file.
+        let tmp = dir.join(format!(".{name}.{}.tmp", uuid::Uuid::now_v7()));
         tokio::task::spawn_blocking(move || {
             std::fs::create_dir_all(&dir)?;
-            std::fs::write(&path, bytes)
+            std::fs::write(&tmp, bytes)?;
+            std::fs::rename(&tmp, &path).inspect_err(|_| {
+                let _ = std::fs::remove_file(&tmp);
+            })
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("artifact writer failed: {e}")))?

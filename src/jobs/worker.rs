@@ -26,6 +26,7 @@ pub struct JobSystem {
     pub store: Store,
     grounder: Arc<dyn Grounder>,
     cache: Arc<SceneCache>,
+    points: Arc<super::exports::PointsCache>,
     running: Arc<RunningJobs>,
     wake: Arc<Notify>,
     shutdown: CancellationToken,
@@ -45,6 +46,7 @@ impl JobSystem {
             store,
             grounder,
             cache: Arc::new(SceneCache::default()),
+            points: Arc::new(Default::default()),
             running: Arc::new(RunningJobs::default()),
             wake: Arc::new(Notify::new()),
             shutdown: CancellationToken::new(),
@@ -81,6 +83,11 @@ impl JobSystem {
 
     pub fn forget_scene(&self, scene_id: &str) {
         self.cache.remove(scene_id);
+        self.points.forget_scene(scene_id);
+    }
+
+    pub(crate) fn points_cache(&self) -> &super::exports::PointsCache {
+        &self.points
     }
 
     pub fn artifact_dir(&self, job_id: &str) -> PathBuf {
@@ -113,7 +120,11 @@ impl JobSystem {
         }
     }
 
-    async fn scene(&self, scene_id: &str) -> Result<Arc<crate::scene::SceneData>, JobFailure> {
+    /// The scene decoded for the pipeline, from the cache when it is there.
+    pub(crate) async fn load_scene(
+        &self,
+        scene_id: &str,
+    ) -> Result<Arc<crate::scene::SceneData>, JobFailure> {
         if let Some(s) = self.cache.get(scene_id) {
             return Ok(s);
         }
@@ -138,7 +149,7 @@ impl JobSystem {
         let token = self.shutdown.child_token();
         self.running.insert(&job.id, token.clone());
         tracing::info!(job = %job.id, attempt = job.attempts, "job started");
-        let outcome = match self.scene(&job.scene_id).await {
+        let outcome = match self.load_scene(&job.scene_id).await {
             Ok(scene) => {
                 let ctx = JobContext {
                     job_id: job.id.clone(),
@@ -224,11 +235,12 @@ impl JobSystem {
     }
 }
 
-/// The API's `result` object: `box` with min, max, centre and size, plus extras.
+/// The API's `result` object: `box` with min, max, centre, size and its 8 corners (corner
+/// `i` takes max x when bit 0 of `i` is set, max y for bit 1, max z for bit 2), plus extras.
 pub fn result_json(out: &GroundingOutput) -> Value {
     let b = &out.bbox;
-    let mut v =
-        json!({"box": {"min": b.min, "max": b.max, "center": b.center(), "size": b.size()}});
+    let mut v = json!({"box": {"min": b.min, "max": b.max, "center": b.center(), "size": b.size(),
+                               "corners": crate::geometry::export::corners(b)}});
     if let Some(o) = v.as_object_mut() {
         for (k, x) in &out.extra {
             o.insert(k.clone(), x.clone());

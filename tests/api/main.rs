@@ -18,6 +18,7 @@ mod openapi;
 mod polling;
 mod restart;
 mod scenes;
+mod viewer;
 mod webhooks;
 
 mod agent_fixture;

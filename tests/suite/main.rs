@@ -16,6 +16,7 @@ mod synth_backproject;
 mod synth_output;
 mod synth_props;
 mod synth_queries;
+mod viewer;
 mod vision_centernet;
 mod vision_depth_seg;
 mod vision_sam;

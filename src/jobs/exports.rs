@@ -1,0 +1,238 @@
+//! Scene exports for the viewer and for robots: the scene's points (coloured, voxel-
+//! downsampled, in the frame of the jobs' boxes) and each frame's camera and detections.
+//! The points are computed once per scene and voxel size, stored beside the scene
+//! (written by tmp + rename) and kept in memory for the next request.
+
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use super::JobSystem;
+use crate::geometry::export::{encode_ply, frame_points, voxel_downsample_colored};
+use crate::scene::SceneData;
+use crate::vision::Detection;
+
+/// Voxel sizes (m) the points export accepts.
+pub const VOXEL_RANGE: std::ops::RangeInclusive<f64> = 0.01..=1.0;
+/// Voxel size (m) when none is asked for.
+pub const DEFAULT_VOXEL: f64 = 0.05;
+/// Depth samples taken per frame at most (the stride between sampled pixels follows).
+const SAMPLES_PER_FRAME: u64 = 40_000;
+
+/// Why an export could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error("no scene with id {0:?}")]
+    SceneNotFound(String),
+    #[error("voxel must be between 0.01 and 1 metres, got {0}")]
+    BadVoxel(f64),
+    #[error("{0}")]
+    Internal(String),
+}
+
+/// Points exports kept in memory, newest last.
+#[derive(Default)]
+pub struct PointsCache {
+    inner: Mutex<Vec<(String, Arc<Vec<u8>>)>>,
+}
+
+impl PointsCache {
+    const CAPACITY: usize = 8;
+
+    fn get(&self, key: &str) -> Option<Arc<Vec<u8>>> {
+        let g = self.inner.lock().ok()?;
+        g.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone())
+    }
+
+    fn put(&self, key: String, v: Arc<Vec<u8>>) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.retain(|(k, _)| *k != key);
+            g.push((key, v));
+            if g.len() > Self::CAPACITY {
+                g.remove(0);
+            }
+        }
+    }
+
+    /// Forget every export of a scene (it was deleted).
+    pub fn forget_scene(&self, scene_id: &str) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.retain(|(k, _)| !k.starts_with(&format!("{scene_id}/")));
+        }
+    }
+}
+
+/// One frame as the scene viewer shows it.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct FrameInfo {
+    /// Five-digit image id (as shown to the VLM and in traces).
+    pub image_id: String,
+    pub name: String,
+    pub usable: bool,
+    /// Camera position in the output frame (null for unusable frames).
+    pub position: Option<[f64; 3]>,
+    /// Unit viewing direction in the output frame (null for unusable frames).
+    pub forward: Option<[f64; 3]>,
+    /// Cached detections of the configured detector, boxes in colour-image pixels.
+    #[schema(value_type = Vec<Object>)]
+    pub detections: Vec<Detection>,
+}
+
+/// The voxel size asked for, checked, as whole millimetres (the cache key).
+pub fn voxel_mm(voxel: Option<f64>) -> Result<u32, ExportError> {
+    let v = voxel.unwrap_or(DEFAULT_VOXEL);
+    if !v.is_finite() || !VOXEL_RANGE.contains(&v) {
+        return Err(ExportError::BadVoxel(v));
+    }
+    Ok((v * 1000.0).round() as u32)
+}
+
+/// The scene's points as binary PLY, voxel `mm` millimetres (blocking; decodes previews).
+pub fn compute_scene_points(scene: &SceneData, mm: u32) -> Vec<u8> {
+    use rayon::prelude::*;
+    let voxel = mm as f64 / 1000.0;
+    let per_frame: Vec<_> = scene
+        .usable_frames()
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|f| {
+            let (w, h) = (f.camera.color.width as u64, f.camera.color.height as u64);
+            let stride = ((w * h) as f64 / SAMPLES_PER_FRAME as f64).sqrt().ceil() as u32;
+            let preview = f.preview_path();
+            let path = if preview.is_file() {
+                preview
+            } else {
+                f.color_path.clone()
+            };
+            let color = image::open(&path).ok().map(|i| i.to_rgb8());
+            let pts = frame_points(&f.camera, &f.depth, color.as_ref(), stride.max(1));
+            voxel_downsample_colored(&pts, voxel)
+        })
+        .collect();
+    let all: Vec<_> = per_frame.into_iter().flatten().collect();
+    let pts = voxel_downsample_colored(&all, voxel);
+    let frame = if scene.axis_align.is_some() {
+        "the scene's axis-aligned frame (axis_align_matrix applied), as the jobs' boxes"
+    } else {
+        "the scene's frame, as the jobs' boxes"
+    };
+    encode_ply(
+        &pts,
+        &[
+            format!("grounder: scene {} points, voxel {voxel} m", scene.id),
+            format!("frame: {frame}"),
+        ],
+    )
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension(format!("{}.tmp", uuid::Uuid::now_v7()));
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path).inspect_err(|_| {
+        let _ = std::fs::remove_file(&tmp);
+    })
+}
+
+impl JobSystem {
+    fn points_file(&self, scene_id: &str, mm: u32) -> PathBuf {
+        self.scene_dir(scene_id).join(format!("points_{mm}mm.ply"))
+    }
+
+    /// The scene's points at voxel `mm` (see [`voxel_mm`]): from memory, else from the file
+    /// stored beside the scene, else computed and stored.
+    pub async fn scene_points(&self, scene_id: &str, mm: u32) -> Result<Arc<Vec<u8>>, ExportError> {
+        let key = format!("{scene_id}/{mm}");
+        if let Some(b) = self.points_cache().get(&key) {
+            return Ok(b);
+        }
+        let file = self.points_file(scene_id, mm);
+        if let Ok(b) = tokio::fs::read(&file).await {
+            let b = Arc::new(b);
+            self.points_cache().put(key, b.clone());
+            return Ok(b);
+        }
+        let scene = self.scene_data(scene_id).await?;
+        let bytes = tokio::task::spawn_blocking(move || {
+            let b = compute_scene_points(&scene, mm);
+            if let Err(e) = write_atomic(&file, &b) {
+                tracing::warn!("cannot store {}: {e}", file.display());
+            }
+            b
+        })
+        .await
+        .map_err(|e| ExportError::Internal(format!("points task failed: {e}")))?;
+        let b = Arc::new(bytes);
+        self.points_cache().put(key, b.clone());
+        Ok(b)
+    }
+
+    /// Every frame's camera and cached detections (of `detector`).
+    pub async fn scene_frames(
+        &self,
+        scene_id: &str,
+        detector: &str,
+    ) -> Result<Vec<FrameInfo>, ExportError> {
+        let scene = self.scene_data(scene_id).await?;
+        let mut dets = self
+            .store
+            .detections(scene_id, detector)
+            .await
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        Ok(scene
+            .frames
+            .iter()
+            .map(|f| {
+                let m = f.camera.cam_to_out();
+                let ok = f.usable && crate::geometry::camera::is_finite_matrix(&m);
+                let forward = nalgebra::Vector3::new(m[(0, 2)], m[(1, 2)], m[(2, 2)]);
+                let n = forward.norm();
+                FrameInfo {
+                    image_id: f.image_id(),
+                    name: f.name.clone(),
+                    usable: f.usable,
+                    position: ok.then(|| [m[(0, 3)], m[(1, 3)], m[(2, 3)]]),
+                    forward: (ok && n > 0.0).then(|| [forward.x / n, forward.y / n, forward.z / n]),
+                    detections: dets.remove(&f.idx).unwrap_or_default(),
+                }
+            })
+            .collect())
+    }
+
+    /// The JPEG to show for frame `idx`: its preview when indexing stored one, else the
+    /// colour image. `None` when the scene has no such frame.
+    pub fn frame_image(&self, scene_id: &str, idx: usize) -> Option<PathBuf> {
+        let color = self
+            .scene_dir(scene_id)
+            .join("color")
+            .join(format!("{idx}.jpg"));
+        let preview = color.with_extension("preview.jpg");
+        if preview.is_file() {
+            Some(preview)
+        } else {
+            color.is_file().then_some(color)
+        }
+    }
+
+    /// Compute the default points export in the background (after indexing), so the first
+    /// viewer of the scene does not wait for it.
+    pub fn warm_scene_points(&self, scene_id: &str) {
+        let (me, id) = (self.clone(), scene_id.to_string());
+        tokio::spawn(async move {
+            if let Ok(mm) = voxel_mm(None) {
+                if let Err(e) = me.scene_points(&id, mm).await {
+                    tracing::warn!(scene = %id, "cannot prepare the scene's points: {e}");
+                }
+            }
+        });
+    }
+
+    async fn scene_data(&self, scene_id: &str) -> Result<Arc<SceneData>, ExportError> {
+        self.load_scene(scene_id).await.map_err(|f| {
+            if f.code == "scene_not_found" {
+                ExportError::SceneNotFound(scene_id.to_string())
+            } else {
+                ExportError::Internal(f.detail)
+            }
+        })
+    }
+}
