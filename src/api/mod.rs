@@ -58,10 +58,14 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/scenes", post(scenes::upload).get(scenes::list))
         .route("/v1/scenes/{id}", get(scenes::get).delete(scenes::delete))
         .route("/v1/scenes/{id}/index", post(scenes::reindex))
-        .route("/v1/scenes/{id}/frames", post(frames::append))
+        // One route per path: the frame's image (GET) and its removal (DELETE) share it.
+        .route(
+            "/v1/scenes/{id}/frames",
+            post(frames::append).get(exports::scene_frames),
+        )
         .route(
             "/v1/scenes/{id}/frames/{name}",
-            axum::routing::delete(frames::remove),
+            get(exports::frame_jpeg).delete(frames::remove),
         )
         .route("/v1/jobs", post(jobs::create).get(jobs::list))
         .route("/v1/jobs/{id}", get(jobs::get))
@@ -72,8 +76,6 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/jobs/{id}/masks/{file}", get(exports::mask_png))
         .route("/v1/jobs/{id}/view", get(viewer::job_page))
         .route("/v1/scenes/{id}/points.ply", get(exports::scene_points))
-        .route("/v1/scenes/{id}/frames", get(exports::scene_frames))
-        .route("/v1/scenes/{id}/frames/{file}", get(exports::frame_jpeg))
         .route("/v1/scenes/{id}/view", get(viewer::scene_page))
         .route("/v1/viewer/{file}", get(viewer::asset))
         .route("/healthz", get(health::healthz))
