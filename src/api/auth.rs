@@ -161,6 +161,36 @@ impl Auth {
     }
 }
 
+/// A key a browser carries for the viewer pages (GET only): the `grounder_key` cookie the
+/// pages set, or `?key=` on the first page load. Keys are URL-safe, so no decoding is needed.
+fn browser_key(req: &Request) -> Option<String> {
+    if req.method() != axum::http::Method::GET {
+        return None;
+    }
+    let valid = |k: &str| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+    };
+    let from_cookie = req
+        .headers()
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .find_map(|c| c.trim().strip_prefix("grounder_key="))
+        .filter(|k| valid(k))
+        .map(str::to_string);
+    from_cookie.or_else(|| {
+        req.uri()
+            .query()?
+            .split('&')
+            .find_map(|kv| kv.strip_prefix("key="))
+            .filter(|k| valid(k))
+            .map(str::to_string)
+    })
+}
+
 /// Middleware: resolve the caller of `/v1/` and `/metrics` requests.
 pub async fn authenticate(State(state): State<AppState>, mut req: Request, next: Next) -> Response {
     let path = req.uri().path();
@@ -172,7 +202,8 @@ pub async fn authenticate(State(state): State<AppState>, mut req: Request, next:
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .map(str::to_string);
+        .map(str::to_string)
+        .or_else(|| browser_key(&req).map(|k| format!("Bearer {k}")));
     let caller = match state
         .auth
         .resolve(&state.store, authorization.as_deref())

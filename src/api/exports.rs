@@ -7,9 +7,11 @@ use axum::http::{header, StatusCode};
 use axum::response::IntoResponse;
 use serde::{Deserialize, Serialize};
 
+use super::auth::Caller;
 use super::{ApiError, AppState};
 use crate::jobs::exports::{voxel_mm, ExportError, FrameInfo};
 use crate::jobs::{mask_artifact, OBJECT_PLY};
+use axum::Extension;
 
 const PLY: &str = "application/octet-stream";
 
@@ -28,8 +30,20 @@ fn valid_id(id: &str) -> bool {
 }
 
 /// A job's artifact file, or 404 naming what is missing (the job itself, or the file).
-async fn job_file(state: &AppState, id: &str, name: &str, what: &str) -> Result<Vec<u8>, ApiError> {
-    if !valid_id(id) || state.store.get_job(id).await?.is_none() {
+async fn job_file(
+    state: &AppState,
+    caller: &Caller,
+    id: &str,
+    name: &str,
+    what: &str,
+) -> Result<Vec<u8>, ApiError> {
+    if !valid_id(id)
+        || !state
+            .store
+            .get_job(id)
+            .await?
+            .is_some_and(|j| caller.sees(j.owner))
+    {
         return Err(ApiError::not_found("job", id));
     }
     tokio::fs::read(state.jobs.artifact_dir(id).join(name))
@@ -50,9 +64,10 @@ async fn job_file(state: &AppState, id: &str, name: &str, what: &str) -> Result<
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn object_ply(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let bytes = job_file(&state, &id, OBJECT_PLY, "object points").await?;
+    let bytes = job_file(&state, &caller, &id, OBJECT_PLY, "object points").await?;
     Ok((
         [
             (header::CONTENT_TYPE, PLY.to_string()),
@@ -73,6 +88,7 @@ pub async fn object_ply(
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn mask_png(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path((id, file)): Path<(String, String)>,
 ) -> Result<impl IntoResponse, ApiError> {
     let Some(frame) = file
@@ -87,6 +103,7 @@ pub async fn mask_png(
     };
     let bytes = job_file(
         &state,
+        &caller,
         &id,
         &mask_artifact(frame),
         &format!("mask for image {frame}"),
@@ -110,11 +127,17 @@ pub struct PointsParams {
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn scene_points(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     Query(p): Query<PointsParams>,
 ) -> Result<impl IntoResponse, ApiError> {
     let mm = voxel_mm(p.voxel)?;
-    if state.store.get_scene(&id).await?.is_none() {
+    if !state
+        .store
+        .get_scene(&id)
+        .await?
+        .is_some_and(|s| caller.sees(s.owner))
+    {
         return Err(ApiError::not_found("scene", &id));
     }
     let bytes = state.jobs.scene_points(&id, mm).await?;
@@ -141,9 +164,15 @@ pub struct FrameList {
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn scene_frames(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<axum::Json<FrameList>, ApiError> {
-    if state.store.get_scene(&id).await?.is_none() {
+    if !state
+        .store
+        .get_scene(&id)
+        .await?
+        .is_some_and(|s| caller.sees(s.owner))
+    {
         return Err(ApiError::not_found("scene", &id));
     }
     let frames = state.jobs.scene_frames(&id, &state.cfg.detector).await?;
@@ -157,6 +186,7 @@ pub async fn scene_frames(
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn frame_jpeg(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path((id, file)): Path<(String, String)>,
 ) -> Result<impl IntoResponse, ApiError> {
     let missing = || {
@@ -166,7 +196,13 @@ pub async fn frame_jpeg(
             format!("scene {id} has no frame {file:?}"),
         )
     };
-    if !valid_id(&id) || state.store.get_scene(&id).await?.is_none() {
+    if !valid_id(&id)
+        || !state
+            .store
+            .get_scene(&id)
+            .await?
+            .is_some_and(|s| caller.sees(s.owner))
+    {
         return Err(ApiError::not_found("scene", &id));
     }
     let idx: usize = file

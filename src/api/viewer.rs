@@ -1,9 +1,11 @@
 //! The viewer: static HTML/JS/CSS pages embedded in the binary (`assets/viewer/`), which
 //! read the JSON API from the browser. three.js is vendored (no CDN, no build step).
 
+use super::auth::Caller;
 use axum::extract::{Path, State};
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
+use axum::Extension;
 
 use super::{ApiError, AppState};
 
@@ -79,9 +81,16 @@ fn page(template: &str, id: &str) -> Response {
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn job_page(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    if !valid_id(&id) || state.store.get_job(&id).await?.is_none() {
+    if !valid_id(&id)
+        || !state
+            .store
+            .get_job(&id)
+            .await?
+            .is_some_and(|j| caller.sees(j.owner))
+    {
         return Err(ApiError::not_found("job", &id));
     }
     Ok(page(JOB_HTML, &id))
@@ -94,9 +103,16 @@ pub async fn job_page(
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn scene_page(
     State(state): State<AppState>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    if !valid_id(&id) || state.store.get_scene(&id).await?.is_none() {
+    if !valid_id(&id)
+        || !state
+            .store
+            .get_scene(&id)
+            .await?
+            .is_some_and(|s| caller.sees(s.owner))
+    {
         return Err(ApiError::not_found("scene", &id));
     }
     Ok(page(SCENE_HTML, &id))

@@ -198,7 +198,10 @@ impl Store {
     }
 
     async fn delete_scene_if_idle_tx(&self, id: &str) -> Result<bool, StoreError> {
-        let mut tx = self.pool.begin().await?;
+        // IMMEDIATE: the check and the writes hold the write lock from the start. A deferred
+        // transaction that reads first cannot upgrade once another connection has written
+        // (SQLite answers "database is locked" at once, without waiting).
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let busy: i64 = sqlx::query_scalar(
             "SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'",
         )

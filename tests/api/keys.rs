@@ -8,6 +8,9 @@ struct Keyed {
     alice: reqwest::Client,
     bob: reqwest::Client,
     admin: reqwest::Client,
+    /// The secrets of alice and bob (for the browser's ways of carrying a key).
+    alice_key: String,
+    bob_key: String,
     _dir: tempfile::TempDir,
 }
 
@@ -24,6 +27,8 @@ async fn keyed(quota_jobs: Option<i64>, quota_bytes: Option<i64>) -> Keyed {
         alice: client_with_key(&a),
         bob: client_with_key(&b),
         admin: client_with_key(&root),
+        alice_key: a.clone(),
+        bob_key: b.clone(),
         _dir: dir,
     }
 }
@@ -89,10 +94,41 @@ async fn two_keys_cannot_see_each_others_scenes_or_jobs() {
     for path in [
         format!("/v1/jobs/{ja}/events"),
         format!("/v1/jobs/{ja}/artifacts/grid_0.jpg"),
+        format!("/v1/jobs/{ja}/object.ply"),
+        format!("/v1/jobs/{ja}/masks/00000.png"),
+        format!("/v1/scenes/{sa}/points.ply"),
+        format!("/v1/scenes/{sa}/frames"),
+        format!("/v1/scenes/{sa}/frames/00000.jpg"),
     ] {
         let (s, _) = get(app, &k.bob, &path).await;
         assert_eq!(s, 404, "{path}");
     }
+    // A browser opens the viewer with ?key= once, then carries the page's cookie; both
+    // are the caller's key (GET only), and another key's scene stays hidden.
+    let page = |q: String| {
+        let c = app.client.clone();
+        let url = app.url(&q);
+        async move { c.get(url).send().await.unwrap().status().as_u16() }
+    };
+    assert_eq!(
+        page(format!("/v1/scenes/{sa}/view?key={}", k.alice_key)).await,
+        200
+    );
+    assert_eq!(
+        page(format!("/v1/scenes/{sa}/view?key={}", k.bob_key)).await,
+        404
+    );
+    assert_eq!(page(format!("/v1/scenes/{sa}/view")).await, 401);
+    let with_cookie = app
+        .client
+        .get(app.url(&format!("/v1/scenes/{sa}/frames")))
+        .header("Cookie", format!("other=1; grounder_key={}", k.alice_key))
+        .send()
+        .await
+        .unwrap()
+        .status()
+        .as_u16();
+    assert_eq!(with_cookie, 200);
     let r = k
         .bob
         .post(app.url(&format!("/v1/jobs/{ja}/cancel")))
@@ -240,7 +276,10 @@ fn cli(dir: &std::path::Path, args: &[&str]) -> std::process::Output {
         .expect("run grounder keys")
 }
 
-#[tokio::test]
+// Multi-threaded: the CLI runs as a blocking child process while the server in this same
+// runtime must keep serving (on one thread a server transaction caught mid-way by the
+// block held the database lock until the CLI gave up: "database is locked").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_keys_cli_creates_lists_revokes_and_shows_webhook_secrets() {
     let dir = tempfile::tempdir().unwrap();
     let out = cli(
