@@ -338,6 +338,13 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             };
             json!({"target_class": class, "attributes": [], "conditions": cond}).to_string()
         }
+        Mode::Grounding if resolved.is_none() => {
+            // A sentence the ground truth does not hold: no frame shows it, so the oracle
+            // names none (the job ends on the retry limit instead of boxing something).
+            json!({"reasoning": "oracle: this sentence is not in the ground truth",
+                   "target_image_id": "none", "reference_image_ids": []})
+            .to_string()
+        }
         Mode::Grounding => {
             let offered = conv.offered.as_deref();
             let best = resolved
