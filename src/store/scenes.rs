@@ -19,6 +19,37 @@ pub const CANDIDATES_KEY: &str = "candidates";
 /// Label of the row that marks a frame indexed with candidates where none were found.
 const CANDIDATES_NONE: &str = "(none)";
 
+/// Replace one frame's cached rows of `detector` with `rows`, inside `tx`.
+async fn replace_frame_rows(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    scene_id: &str,
+    detector: &str,
+    frame_idx: usize,
+    rows: &[Detection],
+) -> Result<(), StoreError> {
+    sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
+        .bind(scene_id)
+        .bind(detector)
+        .bind(frame_idx as i64)
+        .execute(&mut **tx)
+        .await?;
+    for d in rows {
+        sqlx::query("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)")
+            .bind(scene_id)
+            .bind(detector)
+            .bind(frame_idx as i64)
+            .bind(&d.label)
+            .bind(d.score as f64)
+            .bind(d.bbox[0] as f64)
+            .bind(d.bbox[1] as f64)
+            .bind(d.bbox[2] as f64)
+            .bind(d.bbox[3] as f64)
+            .execute(&mut **tx)
+            .await?;
+    }
+    Ok(())
+}
+
 /// A scene as listed over the API.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct SceneRecord {
@@ -257,26 +288,7 @@ impl Store {
         dets: &[Detection],
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
-            .bind(scene_id)
-            .bind(detector)
-            .bind(frame_idx as i64)
-            .execute(&mut *tx)
-            .await?;
-        for d in dets {
-            sqlx::query("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)")
-                .bind(scene_id)
-                .bind(detector)
-                .bind(frame_idx as i64)
-                .bind(&d.label)
-                .bind(d.score as f64)
-                .bind(d.bbox[0] as f64)
-                .bind(d.bbox[1] as f64)
-                .bind(d.bbox[2] as f64)
-                .bind(d.bbox[3] as f64)
-                .execute(&mut *tx)
-                .await?;
-        }
+        replace_frame_rows(&mut tx, scene_id, detector, frame_idx, dets).await?;
         sqlx::query("UPDATE scenes SET index_done = index_done + 1 WHERE id = ?")
             .bind(scene_id)
             .execute(&mut *tx)
@@ -293,33 +305,14 @@ impl Store {
         frame_idx: usize,
         cands: &[Detection],
     ) -> Result<(), StoreError> {
-        let mut tx = self.pool.begin().await?;
-        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
-            .bind(scene_id)
-            .bind(CANDIDATES_KEY)
-            .bind(frame_idx as i64)
-            .execute(&mut *tx)
-            .await?;
         let none = [Detection {
             label: CANDIDATES_NONE.into(),
             score: 0.0,
             bbox: [0.0; 4],
         }];
         let rows = if cands.is_empty() { &none[..] } else { cands };
-        for d in rows {
-            sqlx::query("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)")
-                .bind(scene_id)
-                .bind(CANDIDATES_KEY)
-                .bind(frame_idx as i64)
-                .bind(&d.label)
-                .bind(d.score as f64)
-                .bind(d.bbox[0] as f64)
-                .bind(d.bbox[1] as f64)
-                .bind(d.bbox[2] as f64)
-                .bind(d.bbox[3] as f64)
-                .execute(&mut *tx)
-                .await?;
-        }
+        let mut tx = self.pool.begin().await?;
+        replace_frame_rows(&mut tx, scene_id, CANDIDATES_KEY, frame_idx, rows).await?;
         tx.commit().await?;
         Ok(())
     }
