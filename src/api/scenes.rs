@@ -279,7 +279,17 @@ pub async fn delete(
     }
     state.jobs.forget_scene(&id);
     let dir = state.jobs.scene_dir(&id);
-    let _ = tokio::fs::remove_dir_all(&dir).await;
+    // A background writer (the scene's points being cached) may add a file while the
+    // folder is emptied, which fails the removal with "directory not empty": try again.
+    for _ in 0..5 {
+        match tokio::fs::remove_dir_all(&dir).await {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound && dir.exists() => {
+                tracing::debug!(scene = %id, "removing the scene's folder again: {e}");
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+            _ => break,
+        }
+    }
     Ok(StatusCode::NO_CONTENT)
 }
 
