@@ -16,15 +16,14 @@ use std::time::Instant;
 use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
 use super::{exports, ms, step, VlmGrounder};
-use crate::geometry::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use crate::geometry::ensemble::{
-    chamfer_decisions, find_views_with_room, fuse_clouds, mask_points, single_view_box,
-    CandidateFrame,
+    find_views_with_room, mask_points, single_view_box, CandidateFrame,
 };
+use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
-    cut_wall_leaks, estimate_room, fill_depth, snap_planar_to_wall, voxel_downsample, Aabb,
-    GeometryParams, Mask, RoomLayout, WallCut,
+    cut_wall_leaks, estimate_room, fill_depth, snap_planar_to_wall, Aabb, GeometryParams, Mask,
+    RoomLayout, WallCut,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -321,90 +320,116 @@ pub async fn run(
     let anchor_idx = choice.frame_idx;
     let anchor_image = choice.image.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
-    let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) = tokio::task::spawn_blocking(move || {
-        use rayon::prelude::*;
-        let ts = Instant::now();
-        let segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
-            .par_iter()
-            .filter_map(|(i, b, _)| {
-                let img: &Arc<RgbImage> = decoded.get(i)?;
-                let (frame, fill) = match &view_room {
-                    Some(room) => complete_depth(sc.frames[*i].clone(), *b, &[], Some(room), &params),
-                    None => (sc.frames[*i].clone(), serde_json::Value::Null),
+    let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
+        tokio::task::spawn_blocking(move || {
+            use rayon::prelude::*;
+            let ts = Instant::now();
+            let segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
+                .par_iter()
+                .filter_map(|(i, b, _)| {
+                    let img: &Arc<RgbImage> = decoded.get(i)?;
+                    let (frame, fill) = match &view_room {
+                        Some(room) => {
+                            complete_depth(sc.frames[*i].clone(), *b, &[], Some(room), &params)
+                        }
+                        None => (sc.frames[*i].clone(), serde_json::Value::Null),
+                    };
+                    segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls)
+                        .ok()
+                        .map(|c| (*i, c, fill))
+                })
+                .collect();
+            // What depth completion did in each view (null when it was not asked to).
+            let fills: HashMap<usize, serde_json::Value> =
+                segmented.iter().map(|(i, _, f)| (*i, f.clone())).collect();
+            let clouds: Vec<(usize, ViewCloud)> = segmented
+                .into_iter()
+                .map(|(i, c, _)| (i, c))
+                .filter(|(_, c)| !c.points.is_empty())
+                .collect();
+            let segment_ms = ms(ts);
+            let tf = Instant::now();
+            let af = &sc.frames[anchor_idx];
+            let anchor_view = SegmentedView {
+                index: anchor_idx,
+                camera: &af.camera,
+                depth: af.depth.as_ref(),
+                mask: &anchor_mask,
+                points: &anchor_pts,
+            };
+            let views: Vec<SegmentedView> = clouds
+                .iter()
+                .map(|(i, c)| SegmentedView {
+                    index: *i,
+                    camera: &sc.frames[*i].camera,
+                    depth: sc.frames[*i].depth.as_ref(),
+                    mask: &c.mask,
+                    points: &c.points,
+                })
+                .collect();
+            let frames: Vec<_> = sc
+                .usable_frames()
+                .map(|f| (&f.camera, f.depth.as_ref()))
+                .collect();
+            let VotedFusion {
+                fusion,
+                votes,
+                anchor_kept,
+            } = fuse_segmented(anchor_view, &views, &frames, &params);
+            let votes = json!(votes);
+            let fuse_ms = ms(tf);
+            let tsup = Instant::now();
+            // Support completion sees around the anchor and every view the fusion kept.
+            let mut context = anchor_ctx;
+            for (i, c) in &clouds {
+                if fusion.views.iter().any(|v| v.index == *i && v.kept) {
+                    context.extend(c.context.iter().copied());
+                }
+            }
+            let anchor_kept: &[Point3<f64>] = &anchor_kept;
+            let bulk = median_point(anchor_kept).unwrap_or_default();
+            let support = fusion.aabb.map(|b| {
+                let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
+                let (b, planar) = if flat {
+                    snap_planar_to_wall(
+                        &b,
+                        anchor_kept,
+                        &context,
+                        room.as_ref(),
+                        eye,
+                        flat_depth,
+                        &params,
+                    )
+                } else {
+                    (b, Vec::new())
                 };
-                segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls).ok().map(|c| (*i, c, fill))
-            })
-            .collect();
-        // What depth completion did in each view (null when it was not asked to).
-        let fills: HashMap<usize, serde_json::Value> = segmented.iter().map(|(i, _, f)| (*i, f.clone())).collect();
-        let clouds: Vec<(usize, ViewCloud)> = segmented.into_iter().map(|(i, c, _)| (i, c)).filter(|(_, c)| !c.points.is_empty()).collect();
-        let mut other_pts = Vec::with_capacity(clouds.len());
-        let (mut masks, mut contexts) = (Vec::with_capacity(clouds.len()), Vec::with_capacity(clouds.len()));
-        for (i, c) in clouds {
-            other_pts.push((i, c.points));
-            masks.push(c.mask);
-            contexts.push((i, c.context));
-        }
-        let segment_ms = ms(ts);
-        let tf = Instant::now();
-        let decisions = chamfer_decisions(&anchor_pts, &other_pts, &params);
-        let tv = Instant::now();
-        // Mask votes among the anchor and the kept views: each view's points checked
-        // against the other views' masks.
-        let af = &sc.frames[anchor_idx];
-        let mut voters = vec![MaskView { camera: &af.camera, depth: af.depth.as_ref(), mask: &anchor_mask }];
-        // Each cloud at the fusion voxel first: the union is downsampled to it anyway, and
-        // the votes cost one projection per point and view.
-        let mut owned: Vec<Vec<Point3<f64>>> = vec![voxel_downsample(&anchor_pts, params.fusion_voxel)];
-        for (((i, pts), d), m) in other_pts.iter().zip(&decisions).zip(&masks) {
-            if d.kept {
-                voters.push(MaskView { camera: &sc.frames[*i].camera, depth: sc.frames[*i].depth.as_ref(), mask: m });
-                owned.push(voxel_downsample(pts, params.fusion_voxel));
+                (b, moved, planar)
+            });
+            let support_ms = ms(tsup);
+            // The masks of the views used and the object's points, for the exports.
+            let mut mask_files = vec![(anchor_idx, exports::mask_png(&anchor_mask))];
+            for (i, c) in &clouds {
+                if fusion.views.iter().any(|v| v.index == *i && v.kept) {
+                    mask_files.push((*i, exports::mask_png(&c.mask)));
+                }
             }
-        }
-        let clouds: Vec<&[Point3<f64>]> = owned.iter().map(Vec::as_slice).collect();
-        let voted: Vec<Vec<Point3<f64>>> = if params.consensus.mask_votes && voters.len() > 1 {
-            mask_votes(&clouds, &voters, &params).iter().zip(&clouds).map(|(k, c)| retain(c, k)).collect()
-        } else {
-            clouds.iter().map(|c| c.to_vec()).collect()
-        };
-        let votes = json!({"ms": ms(tv), "voters": voters.len(), "points_before": clouds.iter().map(|c| c.len()).sum::<usize>(), "points_after": voted.iter().map(Vec::len).sum::<usize>(),
-                           "anchor_before": clouds[0].len(), "anchor_after": voted[0].len()});
-        let frames: Vec<_> = sc.usable_frames().map(|f| (&f.camera, f.depth.as_ref())).collect();
-        let carve = |pts: &[Point3<f64>]| free_space_votes(pts, &frames, &params);
-        let refs: Vec<&[Point3<f64>]> = voted.iter().map(Vec::as_slice).collect();
-        let fusion = fuse_clouds(anchor_pts.len(), &refs, decisions, params.consensus.free_space.then_some(&carve as _), &params);
-        let fuse_ms = ms(tf);
-        let tsup = Instant::now();
-        // Support completion sees around the anchor and every view the fusion kept.
-        let mut context = anchor_ctx;
-        for (i, c) in contexts {
-            if fusion.views.iter().any(|v| v.index == i && v.kept) {
-                context.extend(c);
-            }
-        }
-        // The anchor's points after the votes (all of them when the votes left none).
-        let anchor_kept: &[Point3<f64>] = if voted[0].is_empty() { &anchor_pts } else { &voted[0] };
-        let bulk = median_point(anchor_kept).unwrap_or_default();
-        let support = fusion.aabb.map(|b| {
-            let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
-            let (b, planar) = if flat { snap_planar_to_wall(&b, anchor_kept, &context, room.as_ref(), eye, flat_depth, &params) } else { (b, Vec::new()) };
-            (b, moved, planar)
-        });
-        let support_ms = ms(tsup);
-        // The masks of the views used and the object's points, for the exports.
-        let mut mask_files = vec![(anchor_idx, exports::mask_png(&anchor_mask))];
-        for ((i, _), m) in other_pts.iter().zip(&masks) {
-            if fusion.views.iter().any(|v| v.index == *i && v.kept) {
-                mask_files.push((*i, exports::mask_png(m)));
-            }
-        }
-        let object = exports::object_ply(&fusion.kept, &af.camera, &anchor_image);
-        let exports = exports::Exports { masks: mask_files, object };
-        (fusion, single_view_box(&anchor_pts, &params), support, votes, fills, exports, [segment_ms, fuse_ms, support_ms])
-    })
-    .await
-    .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
+            let object = exports::object_ply(&fusion.kept, &af.camera, &anchor_image);
+            let exports = exports::Exports {
+                masks: mask_files,
+                object,
+            };
+            (
+                fusion,
+                single_view_box(&anchor_pts, &params),
+                support,
+                votes,
+                fills,
+                exports,
+                [segment_ms, fuse_ms, support_ms],
+            )
+        })
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
     let (bbox, moved, planar) = support.ok_or_else(|| {
         JobFailure::new("projection_failed", "no points survived outlier removal")
     })?;

@@ -18,6 +18,7 @@ pub mod consensus;
 pub mod depth_fill;
 pub mod ensemble;
 pub mod export;
+pub mod fusion;
 pub mod layout;
 pub mod mask;
 pub mod morph;

@@ -92,6 +92,10 @@ pub struct SupportParams {
     /// Largest depth (m) from such a plane to the wall behind it that makes the two one
     /// object (a door, a window, a box pushed against the wall).
     pub planar_max_depth: f64,
+    /// Share of the plane's points a 1 cm layer must hold to count as the object's front
+    /// face (the layer nearest the camera wins: a window's frame before its glass); 0 takes
+    /// the median of the points, one layer.
+    pub planar_front_share: f64,
     /// Cut the patch of a wall an object's mask leaked onto (see [`super::walls`]).
     pub wall_cut: bool,
 }
@@ -161,6 +165,7 @@ impl Default for SupportParams {
                 .to_vec(),
             planar_iqr: 0.05,
             planar_max_depth: 0.15,
+            planar_front_share: 0.15,
             wall_cut: true,
         }
     }

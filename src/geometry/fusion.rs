@@ -1,0 +1,116 @@
+//! The multi-view fusion the agent runs on segmented views: the paper's chamfer filter
+//! ([`chamfer_decisions`]), then our consensus checks ([`mask_votes`] among the anchor and
+//! the kept views, [`free_space_votes`] on the union) and the box ([`fuse_clouds`]).
+//! Pure: cameras, depth maps, masks and points in, points and a box out.
+
+use nalgebra::Point3;
+use serde::Serialize;
+
+use super::cloud::voxel_downsample;
+use super::consensus::{free_space_votes, mask_votes, retain, MaskView};
+use super::ensemble::{chamfer_decisions, fuse_clouds, FusionResult};
+use super::{DepthMap, FrameCamera, GeometryParams, Mask};
+
+/// One segmented view: its frame, the raw mask and the points back-projected from it.
+#[derive(Debug, Clone, Copy)]
+pub struct SegmentedView<'a> {
+    /// Caller's frame index.
+    pub index: usize,
+    pub camera: &'a FrameCamera,
+    pub depth: &'a DepthMap,
+    pub mask: &'a Mask,
+    pub points: &'a [Point3<f64>],
+}
+
+/// What the mask votes did (for traces).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct VoteStats {
+    pub voters: usize,
+    pub points_before: usize,
+    pub points_after: usize,
+    pub anchor_before: usize,
+    pub anchor_after: usize,
+}
+
+/// The fusion and what led to it.
+#[derive(Debug, Clone)]
+pub struct VotedFusion {
+    pub fusion: FusionResult,
+    pub votes: VoteStats,
+    /// The anchor's points after the votes (all of them when the votes left none).
+    pub anchor_kept: Vec<Point3<f64>>,
+}
+
+/// Fuse `anchor` with the views of `others` that pass the chamfer filter. Each cloud is
+/// taken at the fusion voxel first (the union is downsampled to it anyway, and the votes
+/// cost one projection per point and view); when `consensus.mask_votes` is on and a view
+/// was kept, every point is checked against the other kept views' masks; the union is
+/// carved with `frames` when `consensus.free_space` is on.
+pub fn fuse_segmented(
+    anchor: SegmentedView<'_>,
+    others: &[SegmentedView<'_>],
+    frames: &[(&FrameCamera, &DepthMap)],
+    params: &GeometryParams,
+) -> VotedFusion {
+    let other_pts: Vec<(usize, Vec<Point3<f64>>)> = others
+        .iter()
+        .map(|v| (v.index, v.points.to_vec()))
+        .collect();
+    let decisions = chamfer_decisions(anchor.points, &other_pts, params);
+    let mut voters = vec![MaskView {
+        camera: anchor.camera,
+        depth: anchor.depth,
+        mask: anchor.mask,
+    }];
+    let mut owned = vec![voxel_downsample(anchor.points, params.fusion_voxel)];
+    for (v, d) in others.iter().zip(&decisions) {
+        if d.kept {
+            voters.push(MaskView {
+                camera: v.camera,
+                depth: v.depth,
+                mask: v.mask,
+            });
+            owned.push(voxel_downsample(v.points, params.fusion_voxel));
+        }
+    }
+    let clouds: Vec<&[Point3<f64>]> = owned.iter().map(Vec::as_slice).collect();
+    let voted: Vec<Vec<Point3<f64>>> = if params.consensus.mask_votes && voters.len() > 1 {
+        mask_votes(&clouds, &voters, params)
+            .iter()
+            .zip(&clouds)
+            .map(|(k, c)| retain(c, k))
+            .collect()
+    } else {
+        clouds.iter().map(|c| c.to_vec()).collect()
+    };
+    let votes = VoteStats {
+        voters: voters.len(),
+        points_before: clouds.iter().map(|c| c.len()).sum(),
+        points_after: voted.iter().map(Vec::len).sum(),
+        anchor_before: clouds[0].len(),
+        anchor_after: voted[0].len(),
+    };
+    let carve = |pts: &[Point3<f64>]| free_space_votes(pts, frames, params);
+    let refs: Vec<&[Point3<f64>]> = voted.iter().map(Vec::as_slice).collect();
+    let fusion = fuse_clouds(
+        anchor.points.len(),
+        &refs,
+        decisions,
+        params.consensus.free_space.then_some(&carve as _),
+        params,
+    );
+    let anchor_kept = if voted[0].is_empty() {
+        anchor.points.to_vec()
+    } else {
+        voted[0].clone()
+    };
+    VotedFusion {
+        fusion,
+        votes,
+        anchor_kept,
+    }
+}
+
+#[cfg(test)]
+#[path = "fusion_tests.rs"]
+mod tests;
