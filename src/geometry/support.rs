@@ -42,6 +42,14 @@ pub struct SupportParams {
     /// Largest gap (m) between the box bottom and a support below it (a chair seat whose
     /// legs were eroded away sits ~0.45 m above the floor; a table top ~0.75 m).
     pub max_gap_down: f64,
+    /// Largest gap (m) down to a floor joined through a column: past `max_gap_down`, the
+    /// bottom moves onto a support only when measured points under the box's footprint
+    /// join the two without a break longer than `column_break` (a floor lamp's shade on its
+    /// pole, a round table's top on its pedestal). 0 disables.
+    pub max_gap_column: f64,
+    /// Longest stretch (m) of a column without a measured point (the mask's clearance
+    /// leaves the top of a pole out of the context).
+    pub column_break: f64,
     /// Largest gap (m) between a vertical face and a wall behind it that is taken as is
     /// (a picture's or a door's thickness).
     pub max_gap_side: f64,
@@ -130,6 +138,8 @@ impl Default for SupportParams {
         Self {
             enabled: true,
             max_gap_down: 0.9,
+            max_gap_column: 2.0,
+            column_break: 0.12,
             max_gap_side: 0.1,
             max_gap_far: 0.8,
             max_free: 0.15,
@@ -395,6 +405,30 @@ pub fn observed_free_fraction(
 /// frames in `views`. With
 /// `down` false (an object that hangs on a wall) the bottom face stays. Returns the new box
 /// and the faces that moved.
+/// Do measured points inside the footprint of `b` (x, y) run from the support at height
+/// `floor` up to the box's bottom with no vertical break longer than `column_break`?
+fn column_joins(b: &Aabb, context: &[Point3<f64>], floor: f64, p: &SupportParams) -> bool {
+    let mut zs: Vec<f64> = context
+        .iter()
+        .filter(|q| {
+            (b.min[0]..=b.max[0]).contains(&q.x)
+                && (b.min[1]..=b.max[1]).contains(&q.y)
+                && q.z > floor + p.layer
+                && q.z < b.min[2]
+        })
+        .map(|q| q.z)
+        .collect();
+    zs.sort_by(f64::total_cmp);
+    let mut last = floor;
+    for z in zs.into_iter().chain(std::iter::once(b.min[2])) {
+        if z - last > p.column_break {
+            return false;
+        }
+        last = z;
+    }
+    true
+}
+
 pub fn extend_to_support(
     b: &Aabb,
     bulk: [f64; 3],
@@ -436,8 +470,18 @@ pub fn extend_to_support(
                 (free <= p.max_free).then_some((c, n, Some(free)))
             });
         let found = near.or_else(|| {
+            // A floor further down, joined through a column under the box.
+            if axis == 2 {
+                if p.max_gap_column <= p.max_gap_down {
+                    return None;
+                }
+                let (coord, n) =
+                    find_layer(b, context, (axis, sign), p.max_gap_column, p.margin, p)?;
+                return (coord < face - p.max_gap_down && column_joins(b, context, coord, p))
+                    .then_some((coord, n, None));
+            }
             // A wall further back, joined only when no frame saw the gap empty.
-            if axis == 2 || p.max_gap_far <= p.max_gap_side {
+            if p.max_gap_far <= p.max_gap_side {
                 return None;
             }
             let (coord, n) = find_layer(b, context, (axis, sign), p.max_gap_far, p.margin_far, p)?;
@@ -508,6 +552,45 @@ mod tests {
         assert_eq!(moved.len(), 1);
         assert_eq!((moved[0].axis, moved[0].side), ("z", "min"));
         assert_eq!((e.min[0], e.max[0], e.max[2]), (1.0, 1.5, 0.9));
+    }
+
+    #[test]
+    fn a_floor_lamps_shade_reaches_the_floor_through_its_pole_and_nothing_else_does() {
+        // Shade 1.3..1.65 m high; the floor around; a 3 cm pole under the shade's centre.
+        let b = Aabb::new([1.0, 1.0, 1.3], [1.4, 1.4, 1.65]);
+        let floor = plane(2, 0.0, (0, 0.6, 1.8), (1, 0.6, 1.8), 0.02);
+        let mut pole = Vec::new();
+        let mut z = 0.02;
+        while z < 1.3 {
+            if !(1.2..1.26).contains(&z) {
+                pole.push(Point3::new(1.2, 1.2, z));
+                pole.push(Point3::new(1.22, 1.2, z));
+            }
+            z += 0.02;
+        }
+        let with_pole: Vec<_> = floor.iter().chain(&pole).copied().collect();
+        let (e, moved) = extend_to_support(&b, b.center(), &with_pole, &[], true, &gp());
+        assert!(e.min[2].abs() < 1e-9 && moved.len() == 1, "{e:?} {moved:?}");
+        // Without the pole (a shade on a wall bracket, a pendant), the floor is too far.
+        let (e, moved) = extend_to_support(&b, b.center(), &floor, &[], true, &gp());
+        assert_eq!((e, moved.len()), (b, 0));
+        // A pole broken for 30 cm does not join.
+        let broken: Vec<_> = with_pole
+            .iter()
+            .filter(|q| !(0.5..0.8).contains(&q.z))
+            .copied()
+            .collect();
+        assert_eq!(
+            extend_to_support(&b, b.center(), &broken, &[], true, &gp()).0,
+            b
+        );
+        // Off: no column rule.
+        let mut off = gp();
+        off.support.max_gap_column = 0.0;
+        assert_eq!(
+            extend_to_support(&b, b.center(), &with_pole, &[], true, &off).0,
+            b
+        );
     }
 
     #[test]
