@@ -185,7 +185,17 @@ fn build_grounder(
         );
     }
     match build_vlm_grounder(cfg, detector) {
-        Ok(g) => Ok(Arc::new(g)),
+        Ok(g) => {
+            let g = Arc::new(g);
+            readiness.vlm = Some(g.client.health());
+            // Ask the server about itself now, so that /readyz reports a model that is
+            // not served or cannot take images before the first job finds out.
+            let probe = g.clone();
+            tokio::spawn(async move {
+                probe.client.server_info().await;
+            });
+            Ok(g)
+        }
         Err(e) => {
             let msg = format!("the grounding pipeline cannot start: {e:#}");
             tracing::error!("{msg}");

@@ -34,6 +34,8 @@ pub use error::{ApiError, Problem};
 pub struct Readiness {
     /// Problems that make the service not ready (e.g. a missing model file).
     pub problems: Vec<String>,
+    /// Lasting problems the VLM client has seen (e.g. a model that cannot take images).
+    pub vlm: Option<Arc<crate::vlm::VlmHealth>>,
 }
 
 /// Shared state of every handler.

@@ -23,4 +23,5 @@ mod webhooks;
 
 mod agent_fixture;
 mod agent_paths;
+mod agent_vlm_errors;
 mod fake_vlm;
