@@ -11,6 +11,7 @@ pub mod health;
 pub mod idempotency;
 pub mod jobs;
 pub mod openapi;
+pub mod rejection;
 pub mod scenes;
 pub mod viewer;
 
@@ -85,6 +86,9 @@ pub fn router(state: AppState) -> Router {
         .route("/metrics", get(health::metrics))
         .route("/openapi.yaml", get(openapi::serve_yaml))
         .fallback(fallback)
+        .layer(axum::middleware::from_fn(
+            rejection::problems_for_rejections,
+        ))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             auth::authenticate,

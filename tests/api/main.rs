@@ -17,6 +17,7 @@ mod keys;
 mod llama_cpp;
 mod openapi;
 mod polling;
+mod problems;
 mod restart;
 mod scenes;
 mod viewer;
