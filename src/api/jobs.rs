@@ -118,8 +118,8 @@ pub struct JobList {
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 pub struct ListParams {
     pub scene_id: Option<String>,
-    /// queued | running | succeeded | failed | canceled
-    #[param(pattern = "^(queued|running|succeeded|failed|canceled)$")]
+    /// queued | running | succeeded | failed | canceled (empty: any)
+    #[param(pattern = "^(queued|running|succeeded|failed|canceled)?$")]
     pub status: Option<String>,
     /// Page size, 1..=500 (default 50).
     #[param(minimum = 1, maximum = 500)]
