@@ -117,7 +117,7 @@ for c in "${CONFIGS[@]}"; do
         --seed "$SEED" --error-rate "$err"
     oracle=$URL
     GROUNDER_DETECTOR=$DETECTOR GROUNDER_SEGMENTER=$seg GROUNDER_VLM_BASE_URL=$oracle/v1 \
-        GROUNDER_VLM_MODEL=oracle GROUNDER_VLM_API_KEY=x GROUNDER_WORKERS=$WORKERS \
+        GROUNDER_VLM_MODEL=grounder-oracle GROUNDER_VLM_API_KEY=x GROUNDER_WORKERS=$WORKERS \
         start_server serve "$run" serve --addr 127.0.0.1:0 --data-dir "$run/service"
     t0=$(date +%s)
     "$BIN" eval --dataset "$DATA/ds" --scenes "$DATA/scenes" --server "$URL" --jobs "$JOBS" \

@@ -43,7 +43,7 @@ impl Application {
         let _ = std::fs::remove_dir_all(cfg.data_dir.join("tmp"));
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
-        let detector = load_detector(&cfg, &mut readiness);
+        let detector = load_detector(&cfg)?;
         let grounder = build_grounder(&cfg, detector.clone(), &mut readiness)?;
         let jobs = JobSystem::new(
             store.clone(),
@@ -134,20 +134,15 @@ impl Application {
     }
 }
 
-/// Load the configured detector once (shared by indexing and the pipeline).
-fn load_detector(cfg: &Config, readiness: &mut Readiness) -> Option<Arc<dyn Detector>> {
+/// Load the configured detector once (shared by indexing and the pipeline). A detector
+/// that cannot load stops start-up: every upload's indexing and every job would fail.
+fn load_detector(cfg: &Config) -> anyhow::Result<Option<Arc<dyn Detector>>> {
     if cfg.detector == "none" {
-        return None;
+        return Ok(None);
     }
-    match crate::vision::build_detector(&cfg.detector, &cfg.vision()) {
-        Ok(d) => Some(d),
-        Err(e) => {
-            let msg = format!("detector {:?} cannot be loaded: {e:#}", cfg.detector);
-            tracing::error!("{msg}");
-            readiness.problems.push(msg);
-            None
-        }
-    }
+    crate::vision::build_detector(&cfg.detector, &cfg.vision())
+        .map(Some)
+        .map_err(|e| anyhow::anyhow!("detector {:?} cannot be loaded: {e:#}", cfg.detector))
 }
 
 /// A pipeline that fails every job because a component could not be loaded.
@@ -185,7 +180,17 @@ fn build_grounder(
         );
     }
     match build_vlm_grounder(cfg, detector) {
-        Ok(g) => Ok(Arc::new(g)),
+        Ok(g) => {
+            let g = Arc::new(g);
+            readiness.vlm = Some(g.client.health());
+            // Ask the server about itself now, so that /readyz reports a model that is
+            // not served or cannot take images before the first job finds out.
+            let probe = g.clone();
+            tokio::spawn(async move {
+                probe.client.server_info().await;
+            });
+            Ok(g)
+        }
         Err(e) => {
             let msg = format!("the grounding pipeline cannot start: {e:#}");
             tracing::error!("{msg}");

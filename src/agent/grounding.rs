@@ -16,7 +16,7 @@ use crate::jobs::{JobContext, JobFailure};
 use crate::vision::{DetectInput, Detection, InstanceMask};
 use crate::vlm::json::{parse_grounding, QueryAnalysis};
 use crate::vlm::prompts::{GroundingInput, ReplyKind};
-use crate::vlm::{CallBudget, ImageData, Message};
+use crate::vlm::{CallBudget, ImageData, Message, Role, VlmStep};
 
 /// The chosen frame and 2D box.
 #[derive(Debug, Clone)]
@@ -38,6 +38,34 @@ pub struct Conversation<'a> {
     pub logged: usize,
     pub log: &'a mut VlmLog,
     pub rounds: usize,
+    /// Indices in `messages` of the feedback turns.
+    pub feedback_at: Vec<usize>,
+}
+
+/// The messages a turn needs: every earlier feedback turn and the reply it answered are
+/// left out (only the latest feedback stays), so that failed rounds do not pile up in the
+/// model's context.
+pub fn trimmed(messages: &[Message], feedback_at: &[usize]) -> Vec<Message> {
+    let Some((_, earlier)) = feedback_at.split_last() else {
+        return messages.to_vec();
+    };
+    let mut drop = std::collections::BTreeSet::new();
+    for &f in earlier {
+        drop.insert(f);
+        if f > 0
+            && messages
+                .get(f - 1)
+                .is_some_and(|m| m.role == Role::Assistant)
+        {
+            drop.insert(f - 1);
+        }
+    }
+    messages
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !drop.contains(i))
+        .map(|(_, m)| m.clone())
+        .collect()
 }
 
 impl Conversation<'_> {
@@ -47,6 +75,7 @@ impl Conversation<'_> {
         &mut self,
         g: &VlmGrounder,
         budget: &CallBudget,
+        step: VlmStep,
     ) -> Result<(String, Value), JobFailure> {
         let images_before: usize = self.messages[..self.logged]
             .iter()
@@ -56,12 +85,12 @@ impl Conversation<'_> {
             &self.messages[self.logged..],
             &self.image_urls[images_before.min(self.image_urls.len())..],
         );
-        let reply = g
-            .client
-            .chat(&self.messages, budget)
+        let to_send = trimmed(&self.messages, &self.feedback_at);
+        let (reply, rec) = self
+            .log
+            .call(&g.client, step, &to_send, sent.clone(), budget)
             .await
             .map_err(vlm_failure)?;
-        let rec = self.log.reply(&reply);
         self.messages.push(Message::assistant(reply.text.clone()));
         self.logged = self.messages.len();
         Ok((reply.text, json!({"sent": sent, "reply": rec})))
@@ -79,6 +108,7 @@ impl Conversation<'_> {
                 ),
             ));
         }
+        self.feedback_at.push(self.messages.len());
         self.messages.push(Message::user(text));
         Ok(())
     }
@@ -185,10 +215,14 @@ pub async fn run(
         logged: 0,
         log,
         rounds: 0,
+        feedback_at: Vec::new(),
     };
     let mut exchanges: Vec<Value> = Vec::new();
     loop {
-        let (reply, mut rec) = conv.ask(g, budget).await?;
+        let (reply, mut rec) = match conv.ask(g, budget, VlmStep::ImageSelection).await {
+            Ok(r) => r,
+            Err(e) => return fail_with_trace(ctx, e, exchanges, t).await,
+        };
         let answer = match parse_grounding(&reply) {
             Ok(a) => a,
             Err(e) => {

@@ -95,7 +95,9 @@ pub async fn select(
     conv.image_urls.push(url.clone());
     let mut exchanges: Vec<Value> = Vec::new();
     loop {
-        let (reply, mut rec) = conv.ask(g, budget).await?;
+        let (reply, mut rec) = conv
+            .ask(g, budget, crate::vlm::VlmStep::ObjectSelection)
+            .await?;
         let (fb, why) = match parse_instance(&reply) {
             Ok(a) if (a.object_id as usize) < dets.len() => {
                 exchanges.push(rec);

@@ -146,19 +146,17 @@ pub(crate) async fn step(
         .await;
 }
 
-/// Map a VLM client error to the job's failure.
+/// Map a VLM client error to the job's failure (codes: [`VlmError::code`]).
 pub(crate) fn vlm_failure(e: VlmError) -> JobFailure {
-    match e {
-        VlmError::Cancelled => JobFailure::new("canceled", "canceled while waiting for the VLM"),
-        VlmError::CallBudgetExhausted { max_calls } => JobFailure::new(
-            "vlm_budget_exhausted",
-            format!("the job used its budget of {max_calls} VLM calls"),
-        ),
-        VlmError::DeadlineExceeded => {
-            JobFailure::new("job_timeout", "the job ran out of wall time")
+    let detail = match &e {
+        VlmError::Cancelled => "canceled while waiting for the VLM".to_string(),
+        VlmError::CallBudgetExhausted { max_calls } => {
+            format!("the job used its budget of {max_calls} VLM calls")
         }
-        other => JobFailure::new("vlm_unavailable", other.to_string()),
-    }
+        VlmError::DeadlineExceeded => "the job ran out of wall time".to_string(),
+        other => other.to_string(),
+    };
+    JobFailure::new(e.code(), detail)
 }
 
 impl Grounder for VlmGrounder {
@@ -176,14 +174,29 @@ impl VlmGrounder {
             ctx.cancel.clone(),
         );
         let mut log = vlm_log::VlmLog::default();
+        match self.stages(&ctx, &budget, &mut log, started).await {
+            Ok(out) => Ok(out),
+            Err(e) => {
+                log.record_failure(&ctx, &e, &budget).await;
+                Err(e)
+            }
+        }
+    }
 
-        let analysis = query_analysis::run(self, &ctx, &budget, &mut log).await?;
-        let layout = projection::room_layout(self, &ctx, &analysis.target_class).await?;
-        let pre = preselect::run(self, &ctx, &analysis, layout.as_ref()).await?;
-        let grids = stitching::run(self, &ctx, &pre).await?;
-        let choice = grounding::run(self, &ctx, &budget, &mut log, &analysis, &pre, &grids).await?;
+    async fn stages(
+        &self,
+        ctx: &JobContext,
+        budget: &CallBudget,
+        log: &mut vlm_log::VlmLog,
+        started: Instant,
+    ) -> Result<GroundingOutput, JobFailure> {
+        let analysis = query_analysis::run(self, ctx, budget, log).await?;
+        let layout = projection::room_layout(self, ctx, &analysis.target_class).await?;
+        let pre = preselect::run(self, ctx, &analysis, layout.as_ref()).await?;
+        let grids = stitching::run(self, ctx, &pre).await?;
+        let choice = grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await?;
         let projected =
-            projection::run(self, &ctx, &analysis.target_class, &pre, &choice, layout).await?;
+            projection::run(self, ctx, &analysis.target_class, &pre, &choice, layout).await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

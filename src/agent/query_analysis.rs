@@ -9,7 +9,7 @@ use super::{step, vlm_failure, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::json::{parse_query_analysis, QueryAnalysis};
 use crate::vlm::prompts::ReplyKind;
-use crate::vlm::{CallBudget, Message};
+use crate::vlm::{CallBudget, Message, VlmStep};
 
 /// Lower case with runs of white space folded: the cache key.
 pub fn normalise(query: &str) -> String {
@@ -44,16 +44,36 @@ pub async fn run(
         .await;
         return Ok(a);
     }
-    let mut messages = vec![Message::user(g.prompts.query_analysis(&ctx.query))];
+    let prompt = Message::user(g.prompts.query_analysis(&ctx.query));
+    let mut messages = vec![prompt.clone()];
     let mut exchanges = Vec::new();
     for round in 0..=g.params.max_retries {
         let sent = VlmLog::messages_json(&messages[messages.len() - 1..], &[]);
-        let reply = g
-            .client
-            .chat(&messages, budget)
-            .await
-            .map_err(vlm_failure)?;
-        let rec = log.reply(&reply);
+        let called = log
+            .call(
+                &g.client,
+                VlmStep::QueryAnalysis,
+                &messages,
+                sent.clone(),
+                budget,
+            )
+            .await;
+        let (reply, rec) = match called {
+            Ok(r) => r,
+            Err(e) => {
+                let failure = vlm_failure(e);
+                exchanges.push(json!({"sent": sent, "error": {"code": failure.code, "message": failure.detail}}));
+                step(
+                    ctx,
+                    "query_analysis",
+                    json!({"query": ctx.query}),
+                    json!({"vlm": exchanges, "failed": true, "reason": failure.code}),
+                    t,
+                )
+                .await;
+                return Err(failure);
+            }
+        };
         match parse_query_analysis(&reply.text) {
             Ok(mut a) if !a.target_class.trim().is_empty() => {
                 a.target_class = a.target_class.trim().to_lowercase();
@@ -78,8 +98,13 @@ pub async fn run(
                 };
                 let feedback = g.prompts.feedback_unparsable(ReplyKind::QueryAnalysis);
                 exchanges.push(json!({"sent": sent, "reply": rec, "invalid": why, "feedback": feedback, "round": round}));
-                messages.push(Message::assistant(reply.text));
-                messages.push(Message::user(feedback));
+                // The next turn needs the prompt, the last reply and its feedback only:
+                // earlier failed rounds would only fill the model's context.
+                messages = vec![
+                    prompt.clone(),
+                    Message::assistant(reply.text),
+                    Message::user(feedback),
+                ];
             }
         }
     }

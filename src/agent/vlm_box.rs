@@ -53,7 +53,7 @@ pub async fn ask(
     let inputs =
         json!({"image_id": format!("{idx:05}"), "box_format": format.name(), "image": url});
     loop {
-        let (reply, mut rec) = conv.ask(g, budget).await?;
+        let (reply, mut rec) = conv.ask(g, budget, crate::vlm::VlmStep::Box).await?;
         let (fb, why) = match parse_box(&reply, format, size) {
             Ok(BoxAnswer {
                 bbox: Some(b),

@@ -115,6 +115,7 @@ pub async fn mask_png(
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 pub struct PointsParams {
     /// Voxel size in metres, 0.01..=1 (default 0.05).
+    #[param(minimum = 0.01, maximum = 1.0)]
     pub voxel: Option<f64>,
 }
 

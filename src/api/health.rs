@@ -32,11 +32,15 @@ pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>,
             "the database does not answer",
         ));
     }
-    let problems = state
+    let mut problems = state
         .readiness
         .read()
         .map(|r| r.problems.clone())
         .unwrap_or_default();
+    let vlm = state.readiness.read().ok().and_then(|r| r.vlm.clone());
+    if let Some(p) = vlm.and_then(|h| h.problem()) {
+        problems.push(p);
+    }
     if !problems.is_empty() {
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,

@@ -23,9 +23,12 @@ use crate::store::{JobRecord, JobStatus, ListJobs, NewJobs};
 #[serde(deny_unknown_fields)]
 pub struct CreateJob {
     pub scene_id: String,
-    /// The description of the object, e.g. "the black chair next to the window".
+    /// The description of the object, e.g. "the black chair next to the window" (not
+    /// blank, at most 2000 characters).
+    #[schema(min_length = 1, max_length = 2000, pattern = "\\S")]
     pub query: Option<String>,
     /// Several descriptions at once (1 to 100); one job each, in this order.
+    #[schema(min_items = 1, max_items = 100)]
     pub queries: Option<Vec<String>>,
     /// http(s) URL POSTed the job (signed per Standard Webhooks) when it ends.
     pub webhook_url: Option<String>,
@@ -115,9 +118,11 @@ pub struct JobList {
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 pub struct ListParams {
     pub scene_id: Option<String>,
-    /// queued | running | succeeded | failed | canceled
+    /// queued | running | succeeded | failed | canceled (empty: any)
+    #[param(pattern = "^(queued|running|succeeded|failed|canceled)?$")]
     pub status: Option<String>,
     /// Page size, 1..=500 (default 50).
+    #[param(minimum = 1, maximum = 500)]
     pub limit: Option<i64>,
     pub cursor: Option<String>,
 }
@@ -158,7 +163,9 @@ fn check_query(q: &str) -> Result<String, ApiError> {
               (status = 401, body = super::Problem, content_type = "application/problem+json"),
               (status = 404, body = super::Problem, content_type = "application/problem+json"),
               (status = 409, body = super::Problem, content_type = "application/problem+json", description = "scene_failed, or idempotency_key_in_use"),
-              (status = 422, body = super::Problem, content_type = "application/problem+json", description = "idempotency_key_reused, invalid_webhook_url, webhook_url_not_allowed, webhook_requires_key"),
+              (status = 413, body = super::Problem, content_type = "application/problem+json", description = "The body is too large"),
+              (status = 415, body = super::Problem, content_type = "application/problem+json", description = "The body is not application/json"),
+              (status = 422, body = super::Problem, content_type = "application/problem+json", description = "The JSON does not match CreateJob, or idempotency_key_reused, invalid_webhook_url, webhook_url_not_allowed, webhook_requires_key"),
               (status = 429, body = super::Problem, content_type = "application/problem+json", headers(("Retry-After" = u64, description = "Seconds")))),
     security((), ("bearer" = [])))]
 pub async fn create(

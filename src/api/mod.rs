@@ -11,6 +11,7 @@ pub mod health;
 pub mod idempotency;
 pub mod jobs;
 pub mod openapi;
+pub mod rejection;
 pub mod scenes;
 pub mod viewer;
 
@@ -34,6 +35,8 @@ pub use error::{ApiError, Problem};
 pub struct Readiness {
     /// Problems that make the service not ready (e.g. a missing model file).
     pub problems: Vec<String>,
+    /// Lasting problems the VLM client has seen (e.g. a model that cannot take images).
+    pub vlm: Option<Arc<crate::vlm::VlmHealth>>,
 }
 
 /// Shared state of every handler.
@@ -83,6 +86,9 @@ pub fn router(state: AppState) -> Router {
         .route("/metrics", get(health::metrics))
         .route("/openapi.yaml", get(openapi::serve_yaml))
         .fallback(fallback)
+        .layer(axum::middleware::from_fn(
+            rejection::problems_for_rejections,
+        ))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             auth::authenticate,

@@ -18,7 +18,7 @@ use utoipa::OpenApi;
         super::jobs::Job, super::jobs::JobList, super::jobs::CreateJob, super::jobs::JobBatch, super::jobs::Created,
         super::jobs::WebhookInfo, crate::store::webhooks::Delivery, crate::store::JobStatus, super::health::Health,
         super::exports::FrameList, crate::jobs::exports::FrameInfo)),
-    modifiers(&BearerAuth),
+    modifiers(&BearerAuth, &BinaryUploads),
     tags((name = "scenes", description = "Posed RGB-D scenes"), (name = "jobs", description = "Grounding jobs"), (name = "exports", description = "3D points, masks and frames for viewers and robots"), (name = "viewer", description = "HTML pages to inspect scenes and jobs"), (name = "health", description = "Operations"))
 )]
 pub struct ApiDoc;
@@ -39,6 +39,43 @@ impl utoipa::Modify for BearerAuth {
                     .build(),
             ),
         );
+    }
+}
+
+/// Upload bodies are bytes (`type: string, format: binary`) in every media type the
+/// server reads: tar, gzip, zip, and `application/octet-stream` (a raw `.sens`, or an
+/// archive recognised by its first bytes), so that clients and generators can build them.
+struct BinaryUploads;
+
+impl utoipa::Modify for BinaryUploads {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::content::Content;
+        use utoipa::openapi::schema::{KnownFormat, ObjectBuilder, SchemaFormat, Type};
+        for path in ["/v1/scenes", "/v1/scenes/{id}/frames"] {
+            let Some(body) = openapi
+                .paths
+                .paths
+                .get_mut(path)
+                .and_then(|item| item.post.as_mut())
+                .and_then(|op| op.request_body.as_mut())
+            else {
+                continue;
+            };
+            body.content.clear();
+            for media in [
+                "application/x-tar",
+                "application/gzip",
+                "application/zip",
+                "application/octet-stream",
+            ] {
+                let schema = ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
+                    .build();
+                body.content
+                    .insert(media.to_string(), Content::new(Some(schema)));
+            }
+        }
     }
 }
 

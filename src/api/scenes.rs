@@ -26,7 +26,7 @@ pub struct SceneList {
 /// a capture (`.sens`, TUM RGB-D, nerfstudio, ARKitScenes raw; detected or named with
 /// `format`), or a raw ScanNet `.sens` body (`Content-Type: application/octet-stream`).
 #[utoipa::path(post, path = "/v1/scenes", tag = "scenes", params(CaptureParams),
-    request_body(content = Vec<u8>, description = "Scene archive or raw .sens", content_type = "application/x-tar"),
+    request_body(content = Vec<u8>, description = "Scene archive (tar, tar.gz or zip in the layout of FORMATS.md) or raw .sens", content_type = "application/x-tar"),
     responses(
         (status = 201, body = SceneRecord, headers(("Location" = String, description = "URL of the new scene"))),
         (status = 400, body = super::Problem, content_type = "application/problem+json"),

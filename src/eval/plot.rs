@@ -50,11 +50,12 @@ pub fn register_font_from(paths: &[PathBuf]) -> bool {
     if let Some(ok) = FONT_OK.get() {
         return *ok;
     }
-    paths
+    // The font embedded in the binary when no path holds one.
+    let bytes = paths
         .iter()
         .find_map(|p| std::fs::read(p).ok())
-        .map(register_font)
-        .unwrap_or(false)
+        .unwrap_or_else(|| crate::stitch::label::FONT_BYTES.to_vec());
+    register_font(bytes)
 }
 
 /// Whether a font has been registered successfully.

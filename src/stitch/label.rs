@@ -5,7 +5,7 @@ use image::{Rgb, RgbImage};
 use std::sync::OnceLock;
 
 /// DejaVu Sans Bold, vendored in `assets/fonts/` with its licence.
-static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-Bold.ttf");
+pub(crate) static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-Bold.ttf");
 
 /// The embedded label font.
 pub fn font() -> &'static FontRef<'static> {

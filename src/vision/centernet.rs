@@ -18,6 +18,9 @@ use super::{DetectInput, Detection, Detector, VisionConfig};
 pub const MODEL_FILE: &str = "centernet-coco80.onnx";
 /// File name of the class list next to it.
 pub const CLASSES_FILE: &str = "coco80.txt";
+
+/// The vendored model's bytes (8 MB), for [`CenterNet::embedded`].
+static EMBEDDED_MODEL: &[u8] = include_bytes!("../../models/centernet-coco80.onnx");
 const INPUT: &str = "tower_0/images:0";
 const OUTPUT: &str = "tower_0/detections";
 /// Network input side.
@@ -35,6 +38,18 @@ impl CenterNet {
     /// Load the model and its class list (`coco80.txt` beside the model, else the vendored copy).
     pub fn load(path: &Path, cfg: &VisionConfig) -> Result<Self> {
         let model = OrtModel::load(path, cfg.session_options())?;
+        Self::with_model(model, path, cfg)
+    }
+
+    /// The vendored model and class list, embedded in the binary: the default detector
+    /// works wherever the binary runs, whatever its working directory.
+    pub fn embedded(cfg: &VisionConfig) -> Result<Self> {
+        let label = Path::new("(embedded)").join(MODEL_FILE);
+        let model = OrtModel::load_from_memory(&label, EMBEDDED_MODEL, cfg.session_options())?;
+        Self::with_model(model, &label, cfg)
+    }
+
+    fn with_model(model: OrtModel, path: &Path, cfg: &VisionConfig) -> Result<Self> {
         model.check_io(
             false,
             INPUT,

@@ -218,12 +218,21 @@ pub fn build_detector(spec: &str, cfg: &VisionConfig) -> Result<Arc<dyn Detector
     }
     Ok(match kind {
         "centernet" => {
-            let model = if arg.is_empty() {
-                cfg.model_dir.join(centernet::MODEL_FILE)
+            if arg.is_empty() {
+                // The configured folder's copy when it has one, else the copy in the binary.
+                let model = cfg.model_dir.join(centernet::MODEL_FILE);
+                if model.is_file() {
+                    Arc::new(centernet::CenterNet::load(&model, cfg)?)
+                } else {
+                    tracing::info!(
+                        "{} not found; using the detector model embedded in the binary",
+                        model.display()
+                    );
+                    Arc::new(centernet::CenterNet::embedded(cfg)?)
+                }
             } else {
-                PathBuf::from(arg)
-            };
-            Arc::new(centernet::CenterNet::load(&model, cfg)?)
+                Arc::new(centernet::CenterNet::load(&PathBuf::from(arg), cfg)?)
+            }
         }
         "yolo" => {
             if arg.is_empty() {

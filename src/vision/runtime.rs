@@ -56,11 +56,37 @@ pub fn resolve_library_path() -> (PathBuf, &'static str) {
     }
     match std::env::var("ORT_DYLIB_PATH") {
         Ok(s) if !s.trim().is_empty() => (PathBuf::from(s), "ORT_DYLIB_PATH"),
-        _ => (
-            Path::new(ORT_DEFAULT_DIR).join(ORT_LIB_NAME),
-            "the default location",
-        ),
+        _ => default_library_candidates()
+            .into_iter()
+            .find(|p| p.is_file())
+            .map(|p| (p, "the default location"))
+            .unwrap_or_else(|| {
+                (
+                    Path::new(ORT_DEFAULT_DIR).join(ORT_LIB_NAME),
+                    "the default location",
+                )
+            }),
     }
+}
+
+/// Where the library is looked for when no path is configured, in order: `.ort/` under the
+/// working directory, beside the executable (`.ort/` or the file itself), and the source
+/// checkout the binary was built from (so `target/*/grounder` runs from any directory).
+pub fn default_library_candidates() -> Vec<PathBuf> {
+    let mut out = vec![Path::new(ORT_DEFAULT_DIR).join(ORT_LIB_NAME)];
+    if let Some(dir) = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(Path::to_path_buf))
+    {
+        out.push(dir.join(ORT_DEFAULT_DIR).join(ORT_LIB_NAME));
+        out.push(dir.join(ORT_LIB_NAME));
+    }
+    out.push(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(ORT_DEFAULT_DIR)
+            .join(ORT_LIB_NAME),
+    );
+    out
 }
 
 /// Load the runtime library (once per process) and return the shared environment.
@@ -176,6 +202,20 @@ impl OrtModel {
         if !path.is_file() {
             bail!("model file {} not found", path.display());
         }
+        Self::build(path, opts, |b| b.commit_from_file(path))
+    }
+
+    /// Load a model held in memory (one embedded in the binary); `label` names it in
+    /// errors and in [`OrtModel::path`].
+    pub fn load_from_memory(label: &Path, bytes: &[u8], opts: SessionOptions) -> Result<Self> {
+        Self::build(label, opts, |b| b.commit_from_memory(bytes))
+    }
+
+    fn build(
+        path: &Path,
+        opts: SessionOptions,
+        commit: impl Fn(&mut ort::session::builder::SessionBuilder) -> ort::Result<Session>,
+    ) -> Result<Self> {
         let env = environment()?;
         let mut sessions = Vec::new();
         for _ in 0..opts.sessions.max(1) {
@@ -185,7 +225,7 @@ impl OrtModel {
                         .map_err(Into::into)
                 })
                 .and_then(|b| b.with_inter_threads(1).map_err(Into::into))
-                .and_then(|mut b| b.commit_from_file(path))
+                .and_then(|mut b| commit(&mut b))
                 .map_err(|e| anyhow!("cannot load model file {}: {e}", path.display()))?;
             sessions.push(Mutex::new(session));
         }

@@ -8,12 +8,22 @@
 //! wait runs) past the budget's deadline or after its cancellation token fires.
 
 use crate::vlm::budget::{CallBudget, Usage};
-use crate::vlm::config::{AuthStyle, VlmConfig};
+use crate::vlm::config::{AuthStyle, VlmConfig, VlmStep};
+use crate::vlm::error::{says_model_unknown, says_no_images, trim_message, VlmError};
 use crate::vlm::message::{ImageData, Message, Part, Role};
+use crate::vlm::server_info::{models_url, props_url, ServerInfo};
 use rand::Rng;
 use serde_json::{json, Value};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+
+/// Longest server message kept in an error.
+const MAX_MESSAGE_CHARS: usize = 300;
+/// Fewest reply tokens a request must leave room for in the model's context.
+const MIN_REPLY_TOKENS: u64 = 16;
+/// Time allowed to each request that asks the server about itself.
+const PROBE_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// A successful reply.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -28,86 +38,24 @@ pub struct ChatReply {
     pub latency_ms: u64,
 }
 
-/// Why a chat call failed.
-#[derive(Debug, thiserror::Error)]
-pub enum VlmError {
-    /// The job's cancellation token fired.
-    #[error("VLM call cancelled")]
-    Cancelled,
-    /// The job's call budget is spent.
-    #[error("VLM call budget of {max_calls} calls exhausted")]
-    CallBudgetExhausted {
-        /// The budget.
-        max_calls: u32,
-    },
-    /// The job's wall-time budget is spent (or a wait would exceed it).
-    #[error("VLM wall-time budget exhausted")]
-    DeadlineExceeded,
-    /// 401/403: key missing or wrong.
-    #[error("VLM endpoint refused the credentials (HTTP {status}): {message}")]
-    Auth {
-        /// HTTP status.
-        status: u16,
-        /// Server message (key redacted).
-        message: String,
-    },
-    /// Other 4xx: the request itself is wrong (model name, payload size...).
-    #[error("VLM endpoint rejected the request (HTTP {status}): {message}")]
-    BadRequest {
-        /// HTTP status.
-        status: u16,
-        /// Server message (key redacted).
-        message: String,
-    },
-    /// Still rate-limited after all retries.
-    #[error("VLM endpoint still rate-limited after {attempts} attempts: {message}")]
-    RateLimited {
-        /// Attempts made.
-        attempts: u32,
-        /// Last server message.
-        message: String,
-    },
-    /// Still failing with 5xx after all retries.
-    #[error("VLM endpoint failed with HTTP {status} after {attempts} attempts: {message}")]
-    Server {
-        /// Last HTTP status.
-        status: u16,
-        /// Attempts made.
-        attempts: u32,
-        /// Last server message.
-        message: String,
-    },
-    /// Still timing out after all retries.
-    #[error("VLM request timed out {attempts} times")]
-    Timeout {
-        /// Attempts made.
-        attempts: u32,
-    },
-    /// Still unable to connect after all retries.
-    #[error("cannot reach the VLM endpoint after {attempts} attempts: {message}")]
-    Connection {
-        /// Attempts made.
-        attempts: u32,
-        /// Last error.
-        message: String,
-    },
-    /// 2xx with a body that is not a chat completion.
-    #[error("VLM endpoint sent an unusable response: {0}")]
-    InvalidResponse(String),
-    /// More images than `max_images_per_request`.
-    #[error("{count} images in one request exceed the limit of {max}")]
-    TooManyImages {
-        /// Images in the request.
-        count: usize,
-        /// Configured limit.
-        max: usize,
-    },
-    /// An attached image cannot be read or re-encoded.
-    #[error("cannot prepare an image for the VLM: {0}")]
-    Image(String),
-    /// The client cannot be built from the configuration.
-    #[error("invalid VLM configuration: {0}")]
-    Config(String),
+/// A lasting problem of the VLM endpoint that a call has seen (the model cannot take
+/// images, the model is not served): shown by `/readyz`.
+#[derive(Debug, Default)]
+pub struct VlmHealth {
+    problem: Mutex<Option<String>>,
+}
+
+impl VlmHealth {
+    /// The problem seen, if any.
+    pub fn problem(&self) -> Option<String> {
+        self.problem.lock().ok().and_then(|g| g.clone())
+    }
+
+    fn set(&self, problem: String) {
+        if let Ok(mut g) = self.problem.lock() {
+            *g = Some(problem);
+        }
+    }
 }
 
 /// The chat client. Cheap to share behind an `Arc`.
@@ -117,6 +65,28 @@ pub struct VlmClient {
     url: String,
     http: reqwest::Client,
     json_mode: AtomicBool,
+    health: Arc<VlmHealth>,
+    info: tokio::sync::Mutex<Option<ServerInfo>>,
+}
+
+/// Redirects are followed only to the same scheme, host and port (at most 5), so the key
+/// never goes to another host.
+fn redirect_policy() -> reqwest::redirect::Policy {
+    reqwest::redirect::Policy::custom(|attempt| {
+        let same_origin = attempt.previous().first().is_some_and(|first| {
+            let next = attempt.url();
+            first.scheme() == next.scheme()
+                && first.host_str() == next.host_str()
+                && first.port_or_known_default() == next.port_or_known_default()
+        });
+        if !same_origin {
+            attempt.stop()
+        } else if attempt.previous().len() > 5 {
+            attempt.error("too many redirects")
+        } else {
+            attempt.follow()
+        }
+    })
 }
 
 enum Attempt {
@@ -139,6 +109,7 @@ impl VlmClient {
         }
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_millis(cfg.timeout_ms.clamp(1, 10_000)))
+            .redirect(redirect_policy())
             .build()
             .map_err(|e| VlmError::Config(e.to_string()))?;
         Ok(Self {
@@ -146,7 +117,112 @@ impl VlmClient {
             json_mode: AtomicBool::new(cfg.json_mode),
             cfg,
             http,
+            health: Arc::new(VlmHealth::default()),
+            info: tokio::sync::Mutex::new(None),
         })
+    }
+
+    /// Lasting problems seen by calls (shared with readiness).
+    pub fn health(&self) -> Arc<VlmHealth> {
+        self.health.clone()
+    }
+
+    /// The completion-token cap of a step (never above `max_tokens`).
+    pub fn step_cap(&self, step: VlmStep) -> u32 {
+        self.cfg.step_max_tokens.get(step).min(self.cfg.max_tokens)
+    }
+
+    /// What the server says about itself, asked once (again after a probe that got no
+    /// HTTP answer at all). Problems it reveals (model not served, model cannot take
+    /// images) are recorded in [`VlmHealth`].
+    pub async fn server_info(&self) -> ServerInfo {
+        let mut guard = self.info.lock().await;
+        if let Some(info) = guard.as_ref() {
+            return info.clone();
+        }
+        let Some(mut info) = self.get_json(&models_url(&self.cfg.base_url)).await else {
+            return ServerInfo::default();
+        };
+        let mut info_from = ServerInfo::from_models(&info.take());
+        if let Some(props) = props_url(&self.cfg.base_url) {
+            if let Some(body) = self.get_json(&props).await {
+                info_from.merge_props(&body);
+            }
+        }
+        if self.cfg.check_model && !info_from.serves(&self.cfg.model) {
+            self.health.set(format!(
+                "the VLM endpoint does not serve model {:?}",
+                self.cfg.model
+            ));
+        } else if info_from.vision == Some(false) {
+            self.health
+                .set("the VLM endpoint's model cannot take images".to_string());
+        }
+        *guard = Some(info_from.clone());
+        info_from
+    }
+
+    /// GET a JSON document: `Some(Value::Null)` for any HTTP answer that is not 2xx JSON,
+    /// None when no HTTP answer came.
+    async fn get_json(&self, url: &str) -> Option<Value> {
+        let mut req = self.http.get(url).timeout(PROBE_TIMEOUT);
+        req = self.authorize(req);
+        let resp = req.send().await.ok()?;
+        if !resp.status().is_success() {
+            return Some(Value::Null);
+        }
+        let body = read_capped(resp, self.cfg.max_reply_bytes).await.ok()?;
+        Some(
+            body.and_then(|b| serde_json::from_str(&b).ok())
+                .unwrap_or(Value::Null),
+        )
+    }
+
+    fn authorize(&self, req: reqwest::RequestBuilder) -> reqwest::RequestBuilder {
+        if self.cfg.api_key.is_empty() {
+            return req;
+        }
+        match self.cfg.auth_style {
+            AuthStyle::Bearer => req.bearer_auth(self.cfg.api_key.expose()),
+            AuthStyle::ApiKeyHeader => req.header("api-key", self.cfg.api_key.expose()),
+        }
+    }
+
+    /// Check a request against what the server said; returns the reply-token cap to send.
+    fn admit(&self, info: &ServerInfo, messages: &[Message], cap: u32) -> Result<u32, VlmError> {
+        if self.cfg.check_model && !info.serves(&self.cfg.model) {
+            return Err(VlmError::ModelNotFound {
+                model: self.cfg.model.clone(),
+                available: trim_message(
+                    &info.models.clone().unwrap_or_default().join(", "),
+                    MAX_MESSAGE_CHARS,
+                ),
+            });
+        }
+        let images: usize = messages.iter().map(Message::image_count).sum();
+        if images > 0 && info.vision == Some(false) {
+            return Err(VlmError::CannotSeeImages {
+                message: "the server says its model takes text only".into(),
+            });
+        }
+        let n_ctx = match self.cfg.context_tokens {
+            0 => info.n_ctx,
+            n => Some(n),
+        };
+        let Some(n_ctx) = n_ctx else {
+            return Ok(cap);
+        };
+        let prompt = estimate_tokens(messages, self.cfg.image_tokens);
+        let room = n_ctx.saturating_sub(prompt);
+        if room < MIN_REPLY_TOKENS.min(cap as u64) {
+            return Err(VlmError::ContextOverflow {
+                needed: prompt + cap as u64,
+                prompt,
+                reply: cap as u64,
+                n_ctx,
+            });
+        }
+        Ok(cap.min(room.min(u32::MAX as u64) as u32))
     }
 
     /// The configuration (its Debug form redacts the key).
@@ -154,11 +230,49 @@ impl VlmClient {
         &self.cfg
     }
 
-    /// Send a conversation and return the assistant's reply.
+    /// Send a conversation and return the assistant's reply (at most `max_tokens`).
     pub async fn chat(
         &self,
         messages: &[Message],
         budget: &CallBudget,
+    ) -> Result<ChatReply, VlmError> {
+        self.chat_capped(messages, budget, self.cfg.max_tokens)
+            .await
+    }
+
+    /// Send the conversation of a pipeline step, with that step's reply cap.
+    pub async fn chat_step(
+        &self,
+        step: VlmStep,
+        messages: &[Message],
+        budget: &CallBudget,
+    ) -> Result<ChatReply, VlmError> {
+        self.chat_capped(messages, budget, self.step_cap(step))
+            .await
+    }
+
+    /// Send a conversation with a reply cap of `max_tokens`, the whole call (attempts and
+    /// waits) bounded by `call_timeout_ms`.
+    pub async fn chat_capped(
+        &self,
+        messages: &[Message],
+        budget: &CallBudget,
+        max_tokens: u32,
+    ) -> Result<ChatReply, VlmError> {
+        let ms = self.cfg.call_timeout_ms.max(1);
+        tokio::time::timeout(
+            Duration::from_millis(ms),
+            self.chat_inner(messages, budget, max_tokens),
+        )
+        .await
+        .unwrap_or(Err(VlmError::CallTimeout { ms }))
+    }
+
+    async fn chat_inner(
+        &self,
+        messages: &[Message],
+        budget: &CallBudget,
+        max_tokens: u32,
     ) -> Result<ChatReply, VlmError> {
         let count: usize = messages.iter().map(Message::image_count).sum();
         if count > self.cfg.max_images_per_request {
@@ -167,6 +281,15 @@ impl VlmClient {
                 max: self.cfg.max_images_per_request,
             });
         }
+        let info = tokio::select! {
+            _ = budget.cancel_token().cancelled() => return Err(VlmError::Cancelled),
+            i = self.server_info() => i,
+        };
+        let max_tokens = self.admit(&info, messages, max_tokens).inspect_err(|e| {
+            if let VlmError::CannotSeeImages { .. } = e {
+                self.health.set(e.to_string());
+            }
+        })?;
         let wire = self.wire_messages(messages)?;
         let start = Instant::now();
         let mut attempts = 0u32;
@@ -191,14 +314,22 @@ impl VlmClient {
             }
             let outcome = tokio::select! {
                 _ = budget.cancel_token().cancelled() => return Err(VlmError::Cancelled),
-                o = self.attempt(&wire, timeout, attempts, start) => o,
+                o = self.attempt(&wire, max_tokens, timeout, attempts, start) => o,
             };
             match outcome {
                 Attempt::Done(reply) => {
                     budget.record_usage(reply.usage);
                     return Ok(reply);
                 }
-                Attempt::Fatal(e) => return Err(e),
+                Attempt::Fatal(e) => {
+                    if matches!(
+                        e,
+                        VlmError::CannotSeeImages { .. } | VlmError::ModelNotFound { .. }
+                    ) {
+                        self.health.set(e.to_string());
+                    }
+                    return Err(e);
+                }
                 Attempt::DropJsonMode => {
                     tracing::info!(
                         "VLM endpoint does not accept JSON response mode; sending without it"
@@ -236,6 +367,7 @@ impl VlmClient {
     async fn attempt(
         &self,
         wire: &[Value],
+        max_tokens: u32,
         timeout: Duration,
         attempts: u32,
         start: Instant,
@@ -246,26 +378,33 @@ impl VlmClient {
             "messages": wire,
             "temperature": self.cfg.temperature,
             "top_p": self.cfg.top_p,
-            "max_tokens": self.cfg.max_tokens,
+            "max_tokens": max_tokens,
         });
         if json_mode {
             body["response_format"] = json!({"type": "json_object"});
         }
-        let mut req = self.http.post(&self.url).timeout(timeout).json(&body);
-        if !self.cfg.api_key.is_empty() {
-            req = match self.cfg.auth_style {
-                AuthStyle::Bearer => req.bearer_auth(self.cfg.api_key.expose()),
-                AuthStyle::ApiKeyHeader => req.header("api-key", self.cfg.api_key.expose()),
-            };
-        }
+        let req = self
+            .authorize(self.http.post(&self.url).timeout(timeout))
+            .json(&body);
         let resp = match req.send().await {
             Ok(r) => r,
             Err(e) => return self.transport_error(e, attempts),
         };
         let status = resp.status().as_u16();
         let wait = retry_after(resp.headers());
-        let text = match resp.text().await {
-            Ok(t) => t,
+        let location = resp
+            .headers()
+            .get(reqwest::header::LOCATION)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string();
+        let text = match read_capped(resp, self.cfg.max_reply_bytes).await {
+            Ok(Some(t)) => t,
+            Ok(None) => {
+                return Attempt::Fatal(VlmError::ReplyTooLarge {
+                    limit: self.cfg.max_reply_bytes,
+                })
+            }
             Err(e) => return self.transport_error(e, attempts),
         };
         tracing::debug!(
@@ -285,9 +424,29 @@ impl VlmClient {
                 Err(m) => Attempt::Fatal(VlmError::InvalidResponse(self.redact(&m))),
             };
         }
-        let message = self.redact(&error_message(&text));
+        if (300..400).contains(&status) {
+            return Attempt::Fatal(VlmError::Redirected {
+                status,
+                location: self.redact(&location),
+            });
+        }
+        let (message, code) = error_message(&text);
+        let message = trim_message(&self.redact(&message), MAX_MESSAGE_CHARS);
+        if says_no_images(&message) {
+            return Attempt::Fatal(VlmError::CannotSeeImages { message });
+        }
         match status {
             401 | 403 => Attempt::Fatal(VlmError::Auth { status, message }),
+            400..=499
+                if status != 408
+                    && status != 429
+                    && says_model_unknown(&message, code.as_deref()) =>
+            {
+                Attempt::Fatal(VlmError::ModelNotFound {
+                    model: self.cfg.model.clone(),
+                    available: message,
+                })
+            }
             429 => Attempt::Retry {
                 err: VlmError::RateLimited { attempts, message },
                 wait,
@@ -416,17 +575,59 @@ fn retry_after(h: &reqwest::header::HeaderMap) -> Option<Duration> {
         .map(|s| Duration::from_secs_f64(s.min(DAY)))
 }
 
-/// The `error.message` of an OpenAI-style error body, else the start of the body.
-fn error_message(body: &str) -> String {
+/// The `error.message` (and `error.code`) of an OpenAI-style error body, else the start
+/// of the body.
+fn error_message(body: &str) -> (String, Option<String>) {
     if let Ok(v) = serde_json::from_str::<Value>(body) {
+        let code = v
+            .pointer("/error/code")
+            .and_then(Value::as_str)
+            .map(String::from);
         if let Some(m) = v.pointer("/error/message").and_then(Value::as_str) {
-            return m.to_string();
+            return (m.to_string(), code);
         }
         if let Some(m) = v.get("error").and_then(Value::as_str) {
-            return m.to_string();
+            return (m.to_string(), code);
         }
     }
-    body.chars().take(300).collect()
+    (body.chars().take(MAX_MESSAGE_CHARS).collect(), None)
+}
+
+/// The body as text, or None when it exceeds `limit` bytes (read no further).
+async fn read_capped(
+    mut resp: reqwest::Response,
+    limit: usize,
+) -> Result<Option<String>, reqwest::Error> {
+    if resp.content_length().is_some_and(|n| n > limit as u64) {
+        return Ok(None);
+    }
+    let mut buf = Vec::new();
+    while let Some(chunk) = resp.chunk().await? {
+        if buf.len() + chunk.len() > limit {
+            return Ok(None);
+        }
+        buf.extend_from_slice(&chunk);
+    }
+    Ok(Some(String::from_utf8_lossy(&buf).into_owned()))
+}
+
+/// Rough prompt size in tokens: a token per 3 bytes of text (English is nearer 4, so
+/// this errs on the safe side), a few per message, `image_tokens` per image.
+pub fn estimate_tokens(messages: &[Message], image_tokens: u64) -> u64 {
+    messages
+        .iter()
+        .map(|m| {
+            let text: u64 = m
+                .parts
+                .iter()
+                .map(|p| match p {
+                    Part::Text(t) => (t.len() as u64).div_ceil(3),
+                    Part::Image(_) => image_tokens,
+                })
+                .sum();
+            text + 4
+        })
+        .sum()
 }
 
 /// Text and usage of a chat completion body.

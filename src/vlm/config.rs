@@ -67,8 +67,23 @@ pub struct VlmConfig {
     pub temperature: f32,
     /// Nucleus sampling.
     pub top_p: f32,
-    /// Maximum completion tokens.
+    /// Maximum completion tokens of a call that names no step (and the upper bound of
+    /// every step's cap).
     pub max_tokens: u32,
+    /// Completion-token cap of each pipeline step (a reply is short JSON; a model that
+    /// rambles is cut off here instead of filling its context).
+    pub step_max_tokens: StepMaxTokens,
+    /// Context window of the model in tokens; 0 = read it from the server (llama.cpp's
+    /// `/v1/models` `meta.n_ctx` or `/props`), unchecked when the server does not say.
+    pub context_tokens: u64,
+    /// Tokens one image is assumed to take when a request is checked against the context.
+    pub image_tokens: u64,
+    /// Refuse to call a server whose `/models` listing does not name `model`.
+    pub check_model: bool,
+    /// Largest reply body read, bytes; a larger reply fails the call.
+    pub max_reply_bytes: usize,
+    /// Wall time of one call, all attempts and waits included, milliseconds.
+    pub call_timeout_ms: u64,
     /// Ask for `response_format: json_object`. If the backend rejects it (HTTP 400 naming
     /// `response_format`), the client drops it for the rest of its life.
     pub json_mode: bool,
@@ -88,6 +103,57 @@ pub struct VlmConfig {
     pub backoff_max_ms: u64,
 }
 
+/// The steps that call the VLM.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VlmStep {
+    /// Query analysis (target class, attributes, conditions).
+    QueryAnalysis,
+    /// Choosing an image from the stitched grids.
+    ImageSelection,
+    /// Choosing a detection or a mark in the chosen image.
+    ObjectSelection,
+    /// The VLM's own box (`detector = "vlm"`).
+    Box,
+}
+
+/// Completion-token cap per step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StepMaxTokens {
+    /// Query analysis.
+    pub query_analysis: u32,
+    /// Image selection.
+    pub image_selection: u32,
+    /// Object (detection or mark) selection.
+    pub object_selection: u32,
+    /// The VLM's own box.
+    #[serde(rename = "box")]
+    pub bbox: u32,
+}
+
+impl Default for StepMaxTokens {
+    fn default() -> Self {
+        Self {
+            query_analysis: 512,
+            image_selection: 1024,
+            object_selection: 512,
+            bbox: 512,
+        }
+    }
+}
+
+impl StepMaxTokens {
+    /// The cap of one step.
+    pub fn get(&self, step: VlmStep) -> u32 {
+        match step {
+            VlmStep::QueryAnalysis => self.query_analysis,
+            VlmStep::ImageSelection => self.image_selection,
+            VlmStep::ObjectSelection => self.object_selection,
+            VlmStep::Box => self.bbox,
+        }
+    }
+}
+
 /// Default base URL when none is configured.
 pub const DEFAULT_BASE_URL: &str = "https://api.openai.com/v1";
 
@@ -101,6 +167,12 @@ impl Default for VlmConfig {
             temperature: 0.1,
             top_p: 0.3,
             max_tokens: 4095,
+            step_max_tokens: StepMaxTokens::default(),
+            context_tokens: 0,
+            image_tokens: 1_000,
+            check_model: true,
+            max_reply_bytes: 4 << 20,
+            call_timeout_ms: 600_000,
             json_mode: true,
             image_detail: "high".to_string(),
             max_images_per_request: 10,

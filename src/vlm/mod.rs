@@ -5,11 +5,14 @@ pub mod boxes;
 pub mod budget;
 pub mod client;
 pub mod config;
+pub mod error;
 pub mod json;
 pub mod message;
 pub mod prompts;
+pub mod server_info;
 
 pub use budget::{CallBudget, Usage};
-pub use client::{ChatReply, VlmClient, VlmError};
-pub use config::{ApiKey, AuthStyle, VlmConfig};
+pub use client::{ChatReply, VlmClient, VlmHealth};
+pub use config::{ApiKey, AuthStyle, StepMaxTokens, VlmConfig, VlmStep};
+pub use error::VlmError;
 pub use message::{ImageData, Message, Part, Role};

@@ -77,6 +77,15 @@ impl Fixture {
         Self::start_full(replies, timeout_ms, detector, tweak, false).await
     }
 
+    /// As `start_with`, with the whole service configuration adjusted by `tweak` last.
+    pub async fn start_with_config(
+        timeout_ms: u64,
+        detector: &str,
+        tweak: impl FnOnce(&mut grounder::config::Config),
+    ) -> Fixture {
+        Self::start_full_cfg(vec![], timeout_ms, detector, |_| {}, false, tweak).await
+    }
+
     /// With the class-agnostic candidates on (the default configuration).
     pub async fn start_with_candidates(
         replies: Vec<Reply>,
@@ -93,6 +102,17 @@ impl Fixture {
         tweak: impl FnOnce(&mut VlmConfig),
         candidates: bool,
     ) -> Fixture {
+        Self::start_full_cfg(replies, timeout_ms, detector, tweak, candidates, |_| {}).await
+    }
+
+    async fn start_full_cfg(
+        replies: Vec<Reply>,
+        timeout_ms: u64,
+        detector: &str,
+        tweak: impl FnOnce(&mut VlmConfig),
+        candidates: bool,
+        tweak_cfg: impl FnOnce(&mut grounder::config::Config),
+    ) -> Fixture {
         let vlm = FakeVlm::start(replies).await;
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = test_config(dir.path().to_path_buf());
@@ -105,6 +125,7 @@ impl Fixture {
         let mut vc = vlm_config(&vlm.base, timeout_ms);
         tweak(&mut vc);
         cfg.vlm = Some(vc);
+        tweak_cfg(&mut cfg);
         let app = TestApp::spawn_with(cfg).await;
         let (tar, _) = scene_tar();
         let r = app

@@ -127,7 +127,9 @@ async fn every_format_grounds_the_same_box_as_the_scannet_layout() {
     cfg.detector = "oracle".into();
     cfg.segmenter = "depth".into();
     cfg.model_dir = Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"));
-    cfg.vlm = Some(vlm_config(&format!("http://{oracle_addr}/v1"), 30_000));
+    let mut vc = vlm_config(&format!("http://{oracle_addr}/v1"), 30_000);
+    vc.model = grounder::eval::oracle_vlm::ORACLE_MODEL.into();
+    cfg.vlm = Some(vc);
     let app = TestApp::spawn_with(cfg).await;
 
     let query = scene

@@ -14,8 +14,10 @@ mod hostile;
 mod idempotency;
 mod jobs;
 mod keys;
+mod llama_cpp;
 mod openapi;
 mod polling;
+mod problems;
 mod restart;
 mod scenes;
 mod viewer;
@@ -23,4 +25,5 @@ mod webhooks;
 
 mod agent_fixture;
 mod agent_paths;
+mod agent_vlm_errors;
 mod fake_vlm;

@@ -23,5 +23,6 @@ mod vision_sam;
 mod vision_support;
 mod vision_yolo;
 mod vlm_client;
+mod vlm_errors;
 mod vlm_json;
 mod vlm_prompts;

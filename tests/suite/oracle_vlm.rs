@@ -90,7 +90,7 @@ async fn start(error_rate: f64, seed: u64, second_scene: bool) -> Fixture {
     tokio::spawn(async move { axum::serve(listener, app).await.unwrap() });
     let cfg = VlmConfig {
         base_url: format!("http://{addr}/v1"),
-        model: "oracle".into(),
+        model: "grounder-oracle".into(),
         max_retries: 0,
         ..VlmConfig::default()
     };
