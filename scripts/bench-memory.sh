@@ -5,11 +5,15 @@
 # For each burst: the process's peak resident memory during the burst (VmHWM, reset before
 # the burst through /proc/PID/clear_refs, and the highest VmRSS sampled every 50 ms; the
 # larger of the two is reported), the resident memory WAIT seconds after the burst ended,
-# and the jobs' mean time (created to finished, server clock). Needs jq, curl and python3.
+# the jobs' mean time (created to finished, server clock), their mean non-VLM time (the
+# pipeline's own `non_vlm_ms`) and the server's CPU time per job (user + system, which a
+# busy shared machine disturbs less than wall time). Needs jq, curl and python3.
 #
 # Environment (defaults in brackets): GROUNDER_BIN [built with cargo build --release],
 # FRAMES [100], COLOR_SIZE [1296x968], DEPTH_SIZE [640x480], BURSTS ["1 4 8"],
 # WAIT [60; seconds after each burst before reading the resident size again],
+# SETTLE [20; seconds after indexing before the idle reading: the scene's points export is
+# computed in the background once the scene is ready],
 # WORKERS [8], PORT [18091], EXTRA_ENV [unset; e.g. "GROUNDER_MAX_MEMORY_MB=500"],
 # DATA [target/bench-memory/data; the scene is generated once and kept].
 set -euo pipefail
@@ -20,10 +24,13 @@ COLOR_SIZE=${COLOR_SIZE:-1296x968}
 DEPTH_SIZE=${DEPTH_SIZE:-640x480}
 BURSTS=${BURSTS:-1 4 8}
 WAIT=${WAIT:-60}
+SETTLE=${SETTLE:-20}
 WORKERS=${WORKERS:-8}
 PORT=${PORT:-18091}
 DATA=${DATA:-$ROOT/target/bench-memory/data}
-command -v python3 >/dev/null || { echo "error: python3 is required" >&2; exit 1; }
+for tool in python3 bc; do
+    command -v "$tool" >/dev/null || { echo "error: $tool is required" >&2; exit 1; }
+done
 source "$ROOT/scripts/bench-common.sh"
 
 SYNTH_ARGS="--seed 11 --frames $FRAMES --color-size $COLOR_SIZE --depth-size $DEPTH_SIZE --noise realistic"
@@ -55,6 +62,9 @@ start_serve GROUNDER_WORKERS="$WORKERS" GROUNDER_DETECTOR=oracle GROUNDER_VLM_BA
 
 rss() { awk '/^VmRSS/ {print int($2 / 1024)}' "/proc/$SERVER/status"; }
 hwm() { awk '/^VmHWM/ {print int($2 / 1024)}' "/proc/$SERVER/status"; }
+# CPU time of the server so far, in clock ticks (utime + stime; the name may hold spaces).
+ticks() { sed 's/.*) //' "/proc/$SERVER/stat" | awk '{print $12 + $13}'; }
+TCK=$(getconf CLK_TCK)
 
 SCENE=$(curl -sf --data-binary @"$WORK/scene.tar" -H 'Content-Type: application/x-tar' "$BASE/v1/scenes" | jq -r .id)
 while :; do
@@ -63,15 +73,15 @@ while :; do
     sleep 0.2
 done
 [[ "$STATUS" == ready ]] || { echo "error: indexing failed" >&2; curl -s "$BASE/v1/scenes/$SCENE" >&2; exit 1; }
+sleep "$SETTLE"
 INDEX_PEAK=$(hwm)
-sleep 2
 IDLE=$(rss)
 
 mapfile -t QUERIES < <(jq -r --arg s "$SCENE_NAME" 'select(.scene_id == $s) | .text' "$DATA/ds/queries.jsonl")
 echo "scene: $SCENE_NAME, $FRAMES frames ($COLOR_SIZE colour, $DEPTH_SIZE depth), $WORKERS workers"
-echo "peak during indexing: $INDEX_PEAK MB; idle after indexing: $IDLE MB"
-echo "| concurrent jobs | peak RSS (MB) | RSS ${WAIT} s after (MB) | mean job time (s) | succeeded |"
-echo "|---|---|---|---|---|"
+echo "peak during upload and indexing: $INDEX_PEAK MB; idle ${SETTLE} s after indexing: $IDLE MB"
+echo "| concurrent jobs | peak RSS (MB) | RSS ${WAIT} s after (MB) | mean job time (s) | mean non-VLM time (s) | CPU per job (s) | succeeded |"
+echo "|---|---|---|---|---|---|---|"
 OFFSET=0
 for n in $BURSTS; do
     # Distinct queries per burst (cycling through the scene's queries).
@@ -80,6 +90,7 @@ for n in $BURSTS; do
     OFFSET=$((OFFSET + n))
     echo 5 >"/proc/$SERVER/clear_refs" 2>/dev/null || true
     PEAK=$(rss)
+    T0=$(ticks)
     IDS=$(curl -sf -H 'Content-Type: application/json' -d "$BODY" "$BASE/v1/jobs" | jq -r '.jobs[].id')
     while :; do
         r=$(rss)
@@ -94,8 +105,9 @@ for n in $BURSTS; do
     done
     h=$(hwm)
     ((h > PEAK)) && PEAK=$h
+    CPU=$(echo "scale=2; ($(ticks) - $T0) / $TCK / $n" | bc)
     : >"$WORK/jobs.jsonl"
-    for id in $IDS; do curl -sf "$BASE/v1/jobs/$id" | jq -c '{status, created_at, finished_at}' >>"$WORK/jobs.jsonl"; done
+    for id in $IDS; do curl -sf "$BASE/v1/jobs/$id" | jq -c '{status, created_at, finished_at, non_vlm_ms: .result.stats.non_vlm_ms}' >>"$WORK/jobs.jsonl"; done
     STATS=$(python3 - "$WORK/jobs.jsonl" <<'EOF'
 import json, sys
 from datetime import datetime
@@ -104,10 +116,12 @@ def t(s):
 rows = [json.loads(l) for l in open(sys.argv[1])]
 d = [t(r["finished_at"]) - t(r["created_at"]) for r in rows]
 ok = sum(r["status"] == "succeeded" for r in rows)
-print(f"{sum(d) / len(d):.2f} {ok}/{len(rows)}")
+nv = [r["non_vlm_ms"] / 1000 for r in rows if r.get("non_vlm_ms") is not None]
+nvm = f"{sum(nv) / len(nv):.2f}" if nv else "-"
+print(f"{sum(d) / len(d):.2f} {nvm} {ok}/{len(rows)}")
 EOF
 )
-    read -r MEAN OK <<<"$STATS"
+    read -r MEAN NONVLM OK <<<"$STATS"
     sleep "$WAIT"
-    echo "| $n | $PEAK | $(rss) | $MEAN | $OK |"
+    echo "| $n | $PEAK | $(rss) | $MEAN | $NONVLM | $CPU | $OK |"
 done

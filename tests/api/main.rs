@@ -14,6 +14,7 @@ mod hostile;
 mod idempotency;
 mod jobs;
 mod keys;
+mod memory;
 mod openapi;
 mod polling;
 mod restart;
