@@ -38,6 +38,14 @@ pub struct Config {
     pub max_image_pixels: u64,
     /// Concurrent grounding jobs.
     pub workers: usize,
+    /// Bound of the decoded-scene cache shared by the jobs (depth maps and cameras), MB.
+    pub scene_cache_mb: u64,
+    /// Memory bound for running jobs, MB (0: none). A job starts only when its estimate
+    /// (`job_memory_mb`) fits beside the others, the scene cache and a base; else it waits
+    /// queued. One job always runs.
+    pub max_memory_mb: u64,
+    /// Memory one running job is counted for under `max_memory_mb`, MB.
+    pub job_memory_mb: u64,
     /// Attempts before a job that keeps dying with the process is failed.
     pub max_attempts: i64,
     /// The pipeline the workers run: "vlm" (the method) or "test:delay_ms=N" (testing).
@@ -74,6 +82,9 @@ impl Default for Config {
             max_archive_files: 200_000,
             max_image_pixels: crate::scene::import::DEFAULT_MAX_IMAGE_PIXELS,
             workers: 2,
+            scene_cache_mb: crate::jobs::scene_cache::DEFAULT_SCENE_CACHE_MB,
+            max_memory_mb: 0,
+            job_memory_mb: crate::jobs::worker::DEFAULT_JOB_MEMORY_MB,
             max_attempts: 3,
             pipeline: "vlm".into(),
             detector: "centernet".into(),
@@ -170,6 +181,9 @@ impl Config {
             &mut self.webhook_allow_private,
         )?;
         num("GROUNDER_WORKERS", &mut self.workers)?;
+        num("GROUNDER_SCENE_CACHE_MB", &mut self.scene_cache_mb)?;
+        num("GROUNDER_MAX_MEMORY_MB", &mut self.max_memory_mb)?;
+        num("GROUNDER_JOB_MEMORY_MB", &mut self.job_memory_mb)?;
         num("GROUNDER_MAX_UPLOAD_BYTES", &mut self.max_upload_bytes)?;
         num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;
         num("GROUNDER_MAX_ARCHIVE_FILES", &mut self.max_archive_files)?;

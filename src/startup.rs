@@ -50,8 +50,10 @@ impl Application {
             grounder,
             metrics.clone(),
             WorkerConfig {
-                workers: cfg.workers,
-                data_dir: cfg.data_dir.clone(),
+                scene_cache_bytes: cfg.scene_cache_mb << 20,
+                max_memory_mb: cfg.max_memory_mb,
+                job_memory_mb: cfg.job_memory_mb,
+                ..WorkerConfig::new(cfg.workers, cfg.data_dir.clone())
             },
         );
         let listener = TcpListener::bind(&cfg.addr)

@@ -101,6 +101,10 @@ pub struct VlmGrounder {
     /// The detector is "vlm": the VLM is asked for the target's box in the chosen image.
     pub vlm_boxes: bool,
     analysis_cache: Mutex<HashMap<String, QueryAnalysis>>,
+    /// Slots for the compute stages (layout, pre-selection, stitching; projection), one per
+    /// core: jobs beyond that wait between stages instead of all holding their decoded
+    /// frames and point clouds at once while sharing the same cores (docs/memory.md).
+    compute: tokio::sync::Semaphore,
 }
 
 impl VlmGrounder {
@@ -121,6 +125,20 @@ impl VlmGrounder {
             segmenter,
             params,
             analysis_cache: Mutex::new(HashMap::new()),
+            compute: tokio::sync::Semaphore::new(
+                std::thread::available_parallelism().map_or(2, |n| n.get()),
+            ),
+        }
+    }
+
+    /// Wait for a compute slot (see `compute`); a cancel while waiting ends the job.
+    async fn compute_slot(
+        &self,
+        ctx: &JobContext,
+    ) -> Result<tokio::sync::SemaphorePermit<'_>, JobFailure> {
+        tokio::select! {
+            _ = ctx.cancel.cancelled() => Err(JobFailure::new("canceled", "canceled while waiting for a compute slot")),
+            p = self.compute.acquire() => p.map_err(|_| JobFailure::new("internal", "the compute slots were closed")),
         }
     }
 }
@@ -191,12 +209,16 @@ impl VlmGrounder {
         started: Instant,
     ) -> Result<GroundingOutput, JobFailure> {
         let analysis = query_analysis::run(self, ctx, budget, log).await?;
+        let slot = self.compute_slot(ctx).await?;
         let layout = projection::room_layout(self, ctx, &analysis.target_class).await?;
         let pre = preselect::run(self, ctx, &analysis, layout.as_ref()).await?;
         let grids = stitching::run(self, ctx, &pre).await?;
+        drop(slot);
         let choice = grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await?;
+        let slot = self.compute_slot(ctx).await?;
         let projected =
             projection::run(self, ctx, &analysis.target_class, &pre, &choice, layout).await?;
+        drop(slot);
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

@@ -104,7 +104,7 @@ pub fn compute_scene_points(scene: &SceneData, mm: u32) -> Vec<u8> {
             } else {
                 f.color_path.clone()
             };
-            let color = image::open(&path).ok().map(|i| i.to_rgb8());
+            let color = image::open(&path).ok().map(|i| i.into_rgb8());
             let pts = frame_points(&f.camera, &f.depth, color.as_ref(), stride.max(1));
             voxel_downsample_colored(&pts, voxel)
         })

@@ -44,7 +44,7 @@ pub fn index_frame(
 ) -> anyhow::Result<FrameIndex> {
     let img = image::open(&frame.color_path)
         .map_err(|e| anyhow::anyhow!("frame {}: cannot decode colour: {e}", frame.name))?
-        .to_rgb8();
+        .into_rgb8();
     let candidates = candidates.map(|(setup, room)| {
         frame_candidates(
             &frame.camera,

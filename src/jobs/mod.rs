@@ -4,6 +4,7 @@
 pub mod exports;
 pub mod indexing;
 pub mod ingest;
+pub mod scene_cache;
 pub mod test_grounder;
 pub mod webhooks;
 pub mod worker;
@@ -20,6 +21,7 @@ use crate::geometry::Aabb;
 use crate::scene::SceneData;
 use crate::store::Store;
 
+pub use scene_cache::SceneCache;
 pub use worker::{JobSystem, WorkerConfig};
 
 /// What a successful grounding returns.
@@ -134,37 +136,6 @@ pub struct JobContext {
 /// The grounding pipeline as the worker sees it.
 pub trait Grounder: Send + Sync + 'static {
     fn ground(&self, ctx: JobContext) -> BoxFuture<'_, Result<GroundingOutput, JobFailure>>;
-}
-
-/// Scenes loaded for jobs, kept decoded between jobs (small LRU by insertion).
-#[derive(Default)]
-pub struct SceneCache {
-    inner: Mutex<Vec<(String, Arc<SceneData>)>>,
-}
-
-impl SceneCache {
-    const CAPACITY: usize = 4;
-
-    pub fn get(&self, id: &str) -> Option<Arc<SceneData>> {
-        let g = self.inner.lock().ok()?;
-        g.iter().find(|(k, _)| k == id).map(|(_, v)| v.clone())
-    }
-
-    pub fn put(&self, id: &str, scene: Arc<SceneData>) {
-        if let Ok(mut g) = self.inner.lock() {
-            g.retain(|(k, _)| k != id);
-            g.push((id.to_string(), scene));
-            if g.len() > Self::CAPACITY {
-                g.remove(0);
-            }
-        }
-    }
-
-    pub fn remove(&self, id: &str) {
-        if let Ok(mut g) = self.inner.lock() {
-            g.retain(|(k, _)| k != id);
-        }
-    }
 }
 
 /// Tokens of the jobs running in this process.

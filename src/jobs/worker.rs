@@ -18,6 +18,72 @@ use crate::store::{JobRecord, JobStatus, Store};
 pub struct WorkerConfig {
     pub workers: usize,
     pub data_dir: PathBuf,
+    /// Bound of the decoded-scene cache in bytes.
+    pub scene_cache_bytes: u64,
+    /// Memory the jobs may use, in MB (0: no bound; see [`MemoryGate`]).
+    pub max_memory_mb: u64,
+    /// Memory one running job is counted for, in MB.
+    pub job_memory_mb: u64,
+}
+
+impl WorkerConfig {
+    pub fn new(workers: usize, data_dir: PathBuf) -> Self {
+        Self {
+            workers,
+            data_dir,
+            scene_cache_bytes: super::scene_cache::DEFAULT_SCENE_CACHE_MB << 20,
+            max_memory_mb: 0,
+            job_memory_mb: DEFAULT_JOB_MEMORY_MB,
+        }
+    }
+}
+
+/// Memory one running job is counted for when none is configured (MB): what a job added to
+/// the process's peak in the memory benchmark (docs/memory.md), rounded up.
+pub const DEFAULT_JOB_MEMORY_MB: u64 = 60;
+/// What the process holds besides jobs and the scene cache (code, runtime, SQLite, the
+/// points export), MB: the benchmark's idle resident size less its cached scene.
+pub const BASE_MEMORY_MB: u64 = 160;
+
+/// Admission by memory: a worker takes a job from the queue only once it can reserve the
+/// job's estimated memory within `max_memory_mb` (less the scene cache's bound and the
+/// base); otherwise the job stays queued. One job can always run, however small the bound.
+pub struct MemoryGate {
+    permits: Option<Arc<tokio::sync::Semaphore>>,
+    per_job: u32,
+}
+
+impl MemoryGate {
+    pub fn new(cfg: &WorkerConfig) -> Self {
+        if cfg.max_memory_mb == 0 {
+            return Self {
+                permits: None,
+                per_job: 0,
+            };
+        }
+        let cache_mb = cfg.scene_cache_bytes.div_ceil(1 << 20);
+        let budget = cfg.max_memory_mb.saturating_sub(cache_mb + BASE_MEMORY_MB);
+        let per_job = cfg.job_memory_mb.clamp(1, u32::MAX as u64 / 2);
+        // One job always fits, so a bound below one job's need serialises instead of stalling.
+        let total = budget.max(per_job).min(u32::MAX as u64 / 2);
+        Self {
+            permits: Some(Arc::new(tokio::sync::Semaphore::new(total as usize))),
+            per_job: per_job.min(total) as u32,
+        }
+    }
+
+    /// Jobs that can run at once under the bound (None: unbounded).
+    pub fn capacity(&self) -> Option<usize> {
+        self.permits
+            .as_ref()
+            .map(|s| s.available_permits() / self.per_job.max(1) as usize)
+    }
+
+    /// Wait for room for one job; the reservation ends when the returned value is dropped.
+    async fn reserve(&self) -> Option<tokio::sync::OwnedSemaphorePermit> {
+        let s = self.permits.as_ref()?;
+        s.clone().acquire_many_owned(self.per_job).await.ok()
+    }
 }
 
 /// The shared job machinery; cheap to clone.
@@ -26,6 +92,7 @@ pub struct JobSystem {
     pub store: Store,
     grounder: Arc<dyn Grounder>,
     cache: Arc<SceneCache>,
+    memory: Arc<MemoryGate>,
     points: Arc<super::exports::PointsCache>,
     running: Arc<RunningJobs>,
     wake: Arc<Notify>,
@@ -45,7 +112,8 @@ impl JobSystem {
         Self {
             store,
             grounder,
-            cache: Arc::new(SceneCache::default()),
+            cache: Arc::new(SceneCache::new(cfg.scene_cache_bytes)),
+            memory: Arc::new(MemoryGate::new(&cfg)),
             points: Arc::new(Default::default()),
             running: Arc::new(RunningJobs::default()),
             wake: Arc::new(Notify::new()),
@@ -104,14 +172,21 @@ impl JobSystem {
             if self.shutdown.is_cancelled() {
                 break;
             }
+            // Room for one more job first: beyond `max_memory_mb` jobs wait in the queue.
+            let reserved = tokio::select! {
+                _ = self.shutdown.cancelled() => break,
+                r = self.memory.reserve() => r,
+            };
             match self.store.claim_next_job().await {
                 Ok(Some(job)) => {
                     self.run(job).await;
+                    drop(reserved);
                     continue;
                 }
                 Ok(None) => {}
                 Err(e) => tracing::error!("worker {n}: cannot claim a job: {e}"),
             }
+            drop(reserved);
             tokio::select! {
                 _ = self.shutdown.cancelled() => break,
                 _ = self.wake.notified() => {}
@@ -120,28 +195,27 @@ impl JobSystem {
         }
     }
 
-    /// The scene decoded for the pipeline, from the cache when it is there.
+    /// The scene decoded for the pipeline: shared with the jobs holding it, from the cache
+    /// when kept there, else loaded once however many jobs ask at the same time.
     pub(crate) async fn load_scene(
         &self,
         scene_id: &str,
     ) -> Result<Arc<crate::scene::SceneData>, JobFailure> {
-        if let Some(s) = self.cache.get(scene_id) {
-            return Ok(s);
-        }
-        let loaded = self
-            .store
-            .load_scene(scene_id, &self.scene_dir(scene_id))
+        let dir = self.scene_dir(scene_id);
+        self.cache
+            .get_or_load(scene_id, || async {
+                self.store
+                    .load_scene(scene_id, &dir)
+                    .await
+                    .map_err(|e| JobFailure::new("storage_error", e.to_string()))?
+                    .ok_or_else(|| {
+                        JobFailure::new(
+                            "scene_not_found",
+                            format!("scene {scene_id} no longer exists"),
+                        )
+                    })
+            })
             .await
-            .map_err(|e| JobFailure::new("storage_error", e.to_string()))?
-            .ok_or_else(|| {
-                JobFailure::new(
-                    "scene_not_found",
-                    format!("scene {scene_id} no longer exists"),
-                )
-            })?;
-        let s = Arc::new(loaded);
-        self.cache.put(scene_id, s.clone());
-        Ok(s)
     }
 
     async fn run(&self, job: JobRecord) {

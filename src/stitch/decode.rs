@@ -21,11 +21,11 @@ pub const PREVIEW_QUALITY: u8 = 90;
 /// at most 1/0.9): lets the 0.53 scale of a 4x1 grid of ScanNet frames use the preview.
 pub const SCALE_SLACK: f64 = 0.9;
 
-/// Decode JPEG (or PNG) bytes into RGB.
+/// Decode JPEG (or PNG) bytes into RGB (moved, not copied, when the decoder gave RGB).
 pub fn decode_image(bytes: &[u8]) -> Result<RgbImage> {
     Ok(image::load_from_memory(bytes)
         .context("cannot decode image")?
-        .to_rgb8())
+        .into_rgb8())
 }
 
 /// Read and decode image files in parallel.

@@ -15,6 +15,7 @@ mod idempotency;
 mod jobs;
 mod keys;
 mod llama_cpp;
+mod memory;
 mod openapi;
 mod polling;
 mod problems;
