@@ -12,7 +12,7 @@ use crate::metrics::Metrics;
 use crate::store::Store;
 use crate::vision::Detector;
 use crate::vlm::prompts::Prompts;
-use crate::vlm::{VlmClient, VlmConfig};
+use crate::vlm::VlmClient;
 
 /// A built, not yet serving application.
 pub struct Application {
@@ -208,7 +208,7 @@ fn build_vlm_grounder(
     let segmenter = crate::vision::build_segmenter(&cfg.segmenter, &cfg.vision())?;
     let prompts =
         Prompts::load(cfg.prompts_dir.as_deref()).map_err(|e| anyhow::anyhow!("prompts: {e}"))?;
-    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_else(VlmConfig::from_env))
+    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_default())
         .map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
     Ok(VlmGrounder::new(
         client,
