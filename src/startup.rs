@@ -230,8 +230,13 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
 }
 
 async fn shutdown_signal() {
+    // A handler that cannot be installed must not end the service: log it and wait on
+    // the other signal (or forever).
     let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!("cannot listen for Ctrl-C, serving on: {e}");
+            std::future::pending::<()>().await;
+        }
     };
     #[cfg(unix)]
     let term = async {
@@ -239,7 +244,10 @@ async fn shutdown_signal() {
             Ok(mut s) => {
                 s.recv().await;
             }
-            Err(_) => std::future::pending::<()>().await,
+            Err(e) => {
+                tracing::error!("cannot listen for SIGTERM, serving on: {e}");
+                std::future::pending::<()>().await
+            }
         }
     };
     #[cfg(not(unix))]
