@@ -34,7 +34,9 @@ pub struct ServeArgs {
 pub struct Config {
     /// Which method the defaults follow: "grounder" (ours) or "paper" (the paper's box).
     pub method: Method,
+    /// Address the HTTP service listens on (host:port; port 0 picks a free one).
     pub addr: String,
+    /// Folder holding the database and the uploaded scenes.
     pub data_dir: PathBuf,
     /// Largest accepted upload body in bytes (413 above).
     pub max_upload_bytes: u64,

@@ -184,6 +184,10 @@ fn build_grounder(
             cfg.pipeline
         );
     }
+    if let Some(missing) = vlm_missing(&cfg.vlm.clone().unwrap_or_default()) {
+        tracing::warn!("{missing}");
+        readiness.problems.push(missing);
+    }
     match build_vlm_grounder(cfg, detector) {
         Ok(g) => Ok(Arc::new(g)),
         Err(e) => {
@@ -193,6 +197,22 @@ fn build_grounder(
             Ok(Arc::new(Unavailable(msg)))
         }
     }
+}
+
+/// What the VLM settings lack for a job to get an answer: a hosted endpoint needs a key,
+/// and without a key the base URL must name a local server.
+fn vlm_missing(vlm: &crate::vlm::VlmConfig) -> Option<String> {
+    if vlm.base_url.trim().is_empty() {
+        return Some("no VLM base URL is set (vlm.base_url, GROUNDER_VLM_BASE_URL)".to_string());
+    }
+    if vlm.api_key.is_empty() && vlm.base_url == crate::vlm::config::DEFAULT_BASE_URL {
+        return Some(format!(
+            "no VLM API key is set for {} (vlm.api_key, GROUNDER_VLM_API_KEY or OPENAI_API_KEY), \
+             and no other base URL (vlm.base_url, GROUNDER_VLM_BASE_URL) names a server without keys",
+            vlm.base_url
+        ));
+    }
+    None
 }
 
 fn build_vlm_grounder(
@@ -254,4 +274,32 @@ async fn shutdown_signal() {
     let term = std::future::pending::<()>();
     tokio::select! { _ = ctrl_c => {}, _ = term => {} }
     tracing::info!("shutting down: running jobs will be resumed at next start");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::vlm_missing;
+    use crate::vlm::{ApiKey, VlmConfig};
+
+    #[test]
+    fn readiness_names_a_missing_vlm_key_or_base_url() {
+        let hosted = VlmConfig::default();
+        let msg = vlm_missing(&hosted).unwrap_or_default();
+        assert!(msg.contains("GROUNDER_VLM_API_KEY"), "{msg}");
+        let keyed = VlmConfig {
+            api_key: ApiKey::new("sk-x"),
+            ..VlmConfig::default()
+        };
+        assert_eq!(vlm_missing(&keyed), None);
+        let local = VlmConfig {
+            base_url: "http://127.0.0.1:8000/v1".into(),
+            ..VlmConfig::default()
+        };
+        assert_eq!(vlm_missing(&local), None);
+        let empty = VlmConfig {
+            base_url: " ".into(),
+            ..keyed
+        };
+        assert!(vlm_missing(&empty).unwrap_or_default().contains("base URL"));
+    }
 }

@@ -20,6 +20,7 @@ pub fn to_toml(cfg: &Config) -> anyhow::Result<String> {
         cfg.vlm = Some(crate::vlm::VlmConfig::default());
     }
     let mut value = toml::Value::try_from(&cfg)?;
+    tidy_floats(&mut value);
     if let Some(vlm) = value.get_mut("vlm").and_then(|v| v.as_table_mut()) {
         let shown = if key_set { HIDDEN } else { "" };
         vlm.insert("api_key".into(), toml::Value::String(shown.into()));
@@ -32,6 +33,23 @@ pub fn to_toml(cfg: &Config) -> anyhow::Result<String> {
     }
     out.push_str(&toml::to_string(&value)?);
     Ok(out)
+}
+
+/// Numbers that are `f32` settings print as written (0.2, not 0.20000000298023224).
+fn tidy_floats(v: &mut toml::Value) {
+    match v {
+        toml::Value::Float(x) => {
+            let narrow = *x as f32;
+            if f64::from(narrow) == *x {
+                if let Ok(short) = narrow.to_string().parse::<f64>() {
+                    *x = short;
+                }
+            }
+        }
+        toml::Value::Array(a) => a.iter_mut().for_each(tidy_floats),
+        toml::Value::Table(t) => t.iter_mut().for_each(|(_, v)| tidy_floats(v)),
+        _ => {}
+    }
 }
 
 /// `grounder config`: print the configuration `serve` would use with these arguments.
@@ -59,6 +77,7 @@ mod tests {
             assert!(text.contains(table), "{table} missing: {text}");
         }
         assert!(text.contains("# prompts_dir is not set"), "{text}");
+        assert!(text.contains("preselect_score = 0.2\n"), "{text}");
         // What is printed reads back as the same configuration (once the key is given).
         let back: Config = toml::from_str(&text.replace("\"***\"", "\"sk-very-secret\"")).unwrap();
         assert_eq!(

@@ -129,3 +129,49 @@ async fn a_nested_key_from_the_environment_changes_what_the_service_does() {
         "GROUNDER_AGENT__CANDIDATES__ENABLED=false was ignored"
     );
 }
+
+/// Tables whose entries are data (class names), documented as one key.
+const MAP_KEYS: &[&str] = &["agent.geometry.layout.class_depth"];
+
+fn leaf_keys(prefix: &str, v: &toml::Value, out: &mut Vec<String>) {
+    match v {
+        toml::Value::Table(t) if !MAP_KEYS.contains(&prefix) => {
+            for (k, v) in t {
+                let path = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                leaf_keys(&path, v, out);
+            }
+        }
+        _ => out.push(prefix.to_string()),
+    }
+}
+
+#[test]
+fn every_key_of_the_effective_configuration_is_in_the_reference() {
+    let o = run(&["config"], &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    let value: toml::Value = toml::from_str(&text).unwrap();
+    let mut keys = Vec::new();
+    leaf_keys("", &value, &mut keys);
+    // Keys left unset are printed as comments: "# model_dir is not set: ...".
+    keys.extend(text.lines().filter_map(|l| {
+        l.strip_prefix("# ")
+            .and_then(|r| r.split_once(" is not set"))
+            .map(|(k, _)| k.to_string())
+    }));
+    assert!(keys.len() > 100, "too few keys walked: {}", keys.len());
+    let doc_path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/configuration.md");
+    let doc = std::fs::read_to_string(doc_path).unwrap();
+    let missing: Vec<_> = keys
+        .iter()
+        .filter(|k| !doc.contains(&format!("| `{k}` |")))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "keys missing from docs/configuration.md: {missing:?}"
+    );
+}
