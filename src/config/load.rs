@@ -204,10 +204,12 @@ pub fn resolve(src: &Sources<'_>) -> Result<Config, ConfigError> {
         Ok(_) => upper.extract_inner::<Method>("method").map_err(explain)?,
         Err(_) => Method::default(),
     };
-    let mut defaults = Config::default();
-    defaults.method = method;
+    let mut defaults = Config {
+        method,
+        vlm: Some(crate::vlm::VlmConfig::default()),
+        ..Config::default()
+    };
     method.apply(&mut defaults.agent);
-    defaults.vlm = Some(crate::vlm::VlmConfig::default());
     let mut cfg: Config = Figment::from(Serialized::defaults(defaults))
         .merge(upper)
         .extract_lossy()

@@ -65,11 +65,13 @@ mod tests {
 
     #[test]
     fn the_api_key_is_hidden_and_every_table_is_printed() {
-        let mut cfg = Config::default();
-        cfg.vlm = Some(crate::vlm::VlmConfig {
-            api_key: crate::vlm::ApiKey::new("sk-very-secret"),
-            ..Default::default()
-        });
+        let cfg = Config {
+            vlm: Some(crate::vlm::VlmConfig {
+                api_key: crate::vlm::ApiKey::new("sk-very-secret"),
+                ..Default::default()
+            }),
+            ..Config::default()
+        };
         let text = to_toml(&cfg).unwrap();
         assert!(!text.contains("sk-very-secret"), "{text}");
         assert!(text.contains("api_key = \"***\""), "{text}");
