@@ -18,6 +18,8 @@ pub struct Cli {
 pub enum Command {
     /// Run the HTTP service.
     Serve(crate::config::ServeArgs),
+    /// Print the effective configuration (defaults, file, environment, flags) as TOML.
+    Config(crate::config::ServeArgs),
     /// Generate a synthetic posed RGB-D scene with exact ground truth.
     Synth(crate::synth::cli::SynthArgs),
     /// Print the dynamic-stitching layout plan for N images as JSON.
@@ -65,6 +67,7 @@ pub fn main() -> ExitCode {
             Command::Ground(a) => Ok(crate::client::ground::run(a).await),
             Command::Demo(a) => Ok(crate::client::demo::run(a).await),
             Command::Serve(a) => done(crate::startup::serve(a).await),
+            Command::Config(a) => done(crate::config::show::run(&a)),
             Command::Synth(a) => done(crate::synth::cli::run(a)),
             Command::StitchPlan(a) => done(crate::stitch::cli::run_plan(a)),
             Command::RetrievalBench(a) => done(crate::stitch::cli::run_retrieval_bench(a).await),
@@ -82,6 +85,11 @@ pub fn main() -> ExitCode {
     });
     match result {
         Ok(code) => code,
+        Err(e) if e.downcast_ref::<crate::config::ConfigError>().is_some() => {
+            // A configuration that cannot be used: exit code 2, as for bad arguments.
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        }
         Err(e) => {
             // One line: the chain of causes joined.
             let msg = e

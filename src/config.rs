@@ -1,16 +1,23 @@
-//! Service configuration: flags and environment variables, with an optional TOML file
-//! for everything else. Precedence: flag > environment > file > default.
+//! Service configuration: the keys and their defaults. Loaded in layers (defaults with the
+//! `method` preset, TOML file, environment, flags) by [`load`]; printed by [`show`].
 
-use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+pub mod load;
+mod preset;
+pub mod show;
+
+pub use load::ConfigError;
+pub use preset::Method;
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct ServeArgs {
-    /// Address to listen on.
-    #[arg(long, env = "GROUNDER_ADDR")]
+    /// Address to listen on (also GROUNDER_ADDR).
+    #[arg(long)]
     pub addr: Option<String>,
-    /// Directory holding the database and scene files.
-    #[arg(long, env = "GROUNDER_DATA_DIR")]
+    /// Directory holding the database and scene files (also GROUNDER_DATA_DIR).
+    #[arg(long)]
     pub data_dir: Option<PathBuf>,
     /// Optional TOML configuration file (keys as in `Config`).
     #[arg(long, env = "GROUNDER_CONFIG")]
@@ -22,10 +29,14 @@ pub struct ServeArgs {
 }
 
 /// Everything the service can be configured with.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
+    /// Which method the defaults follow: "grounder" (ours) or "paper" (the paper's box).
+    pub method: Method,
+    /// Address the HTTP service listens on (host:port; port 0 picks a free one).
     pub addr: String,
+    /// Folder holding the database and the uploaded scenes.
     pub data_dir: PathBuf,
     /// Largest accepted upload body in bytes (413 above).
     pub max_upload_bytes: u64,
@@ -58,6 +69,8 @@ pub struct Config {
     pub model_dir: Option<PathBuf>,
     /// Path of libonnxruntime (else ORT_DYLIB_PATH, else ./.ort/).
     pub ort_dylib: Option<PathBuf>,
+    /// Sessions per vision model = inferences that may run at the same time.
+    pub vision_concurrency: usize,
     /// Folder whose prompt files override the built-in ones (GROUNDER_PROMPTS_DIR).
     pub prompts_dir: Option<PathBuf>,
     /// Answer without API keys (when none exist) even on a non-loopback address.
@@ -66,15 +79,15 @@ pub struct Config {
     pub webhook_allow_private: bool,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
-    /// VLM client settings used instead of `VlmConfig::from_env()` when set (tests and
-    /// embedding; not read from the file).
-    #[serde(skip)]
+    /// VLM client settings (`[vlm]` table); [`load`] always sets them, a `Config` built in
+    /// code without them uses `VlmConfig::default()`.
     pub vlm: Option<crate::vlm::VlmConfig>,
 }
 
 impl Default for Config {
     fn default() -> Self {
         Self {
+            method: Method::default(),
             addr: "127.0.0.1:8080".into(),
             data_dir: PathBuf::from("./data"),
             max_upload_bytes: 2 << 30,
@@ -91,6 +104,7 @@ impl Default for Config {
             segmenter: "depth".into(),
             model_dir: None,
             ort_dylib: None,
+            vision_concurrency: 1,
             prompts_dir: None,
             allow_anonymous: false,
             webhook_allow_private: false,
@@ -103,92 +117,32 @@ impl Default for Config {
 impl Config {
     /// Vision settings derived from this configuration.
     pub fn vision(&self) -> crate::vision::VisionConfig {
-        let mut v = crate::vision::VisionConfig::from_env();
-        v.detector = self.detector.clone();
-        v.segmenter = self.segmenter.clone();
+        let mut v = crate::vision::VisionConfig {
+            detector: self.detector.clone(),
+            segmenter: self.segmenter.clone(),
+            ort_dylib: self.ort_dylib.clone(),
+            concurrency: self.vision_concurrency,
+            ..Default::default()
+        };
         if let Some(d) = &self.model_dir {
             v.model_dir = d.clone();
-        }
-        if self.ort_dylib.is_some() {
-            v.ort_dylib = self.ort_dylib.clone();
         }
         v
     }
 
-    /// Resolve the configuration from the command line, environment and file.
-    pub fn load(args: &ServeArgs) -> anyhow::Result<Self> {
-        let mut cfg = match &args.config {
-            Some(path) => Self::from_file(path)?,
-            None => Self::default(),
-        };
-        if let Some(a) = &args.addr {
-            cfg.addr = a.clone();
-        }
-        if let Some(d) = &args.data_dir {
-            cfg.data_dir = d.clone();
-        }
-        cfg.apply_env()?;
-        if args.allow_anonymous {
-            cfg.allow_anonymous = true;
-        }
-        Ok(cfg)
-    }
-
-    fn from_file(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| anyhow::anyhow!("cannot read config file {}: {e}", path.display()))?;
-        toml::from_str(&text)
-            .map_err(|e| anyhow::anyhow!("invalid config file {}: {e}", path.display()))
-    }
-
-    fn apply_env(&mut self) -> anyhow::Result<()> {
-        fn num<T: std::str::FromStr>(key: &str, into: &mut T) -> anyhow::Result<()> {
-            if let Ok(v) = std::env::var(key) {
-                *into = v
-                    .parse()
-                    .map_err(|_| anyhow::anyhow!("{key}={v:?} is not a valid number"))?;
-            }
-            Ok(())
-        }
-        if let Ok(v) = std::env::var("GROUNDER_PIPELINE") {
-            self.pipeline = v;
-        }
-        if let Ok(v) = std::env::var("GROUNDER_DETECTOR") {
-            self.detector = v;
-        }
-        if let Ok(v) = std::env::var("GROUNDER_SEGMENTER") {
-            self.segmenter = v;
-        }
-        if let Ok(v) = std::env::var("GROUNDER_PROMPTS_DIR") {
-            self.prompts_dir = Some(PathBuf::from(v));
-        }
-        if let Ok(v) = std::env::var("GROUNDER_MODEL_DIR") {
-            self.model_dir = Some(PathBuf::from(v));
-        }
-        fn flag(key: &str, into: &mut bool) -> anyhow::Result<()> {
-            if let Ok(v) = std::env::var(key) {
-                *into = match v.trim().to_ascii_lowercase().as_str() {
-                    "1" | "true" | "yes" | "on" => true,
-                    "0" | "false" | "no" | "off" | "" => false,
-                    _ => anyhow::bail!("{key}={v:?} is not 1 or 0"),
-                };
-            }
-            Ok(())
-        }
-        flag("GROUNDER_ALLOW_ANONYMOUS", &mut self.allow_anonymous)?;
-        flag(
-            "GROUNDER_WEBHOOK_ALLOW_PRIVATE",
-            &mut self.webhook_allow_private,
-        )?;
-        num("GROUNDER_WORKERS", &mut self.workers)?;
-        num("GROUNDER_SCENE_CACHE_MB", &mut self.scene_cache_mb)?;
-        num("GROUNDER_MAX_MEMORY_MB", &mut self.max_memory_mb)?;
-        num("GROUNDER_JOB_MEMORY_MB", &mut self.job_memory_mb)?;
-        num("GROUNDER_MAX_UPLOAD_BYTES", &mut self.max_upload_bytes)?;
-        num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;
-        num("GROUNDER_MAX_ARCHIVE_FILES", &mut self.max_archive_files)?;
-        num("GROUNDER_MAX_IMAGE_PIXELS", &mut self.max_image_pixels)?;
-        Ok(())
+    /// Resolve the configuration from the command line, the process environment (read
+    /// here once) and the file.
+    pub fn load(args: &ServeArgs) -> Result<Self, ConfigError> {
+        let env = load::process_env();
+        load::resolve(&load::Sources {
+            file: args.config.as_deref(),
+            env: &env,
+            flags: load::Flags {
+                addr: args.addr.clone(),
+                data_dir: args.data_dir.clone(),
+                allow_anonymous: args.allow_anonymous,
+            },
+        })
     }
 }
 

@@ -12,7 +12,7 @@ use crate::metrics::Metrics;
 use crate::store::Store;
 use crate::vision::Detector;
 use crate::vlm::prompts::Prompts;
-use crate::vlm::{VlmClient, VlmConfig};
+use crate::vlm::VlmClient;
 
 /// A built, not yet serving application.
 pub struct Application {
@@ -181,6 +181,10 @@ fn build_grounder(
             cfg.pipeline
         );
     }
+    if let Some(missing) = vlm_missing(&cfg.vlm.clone().unwrap_or_default()) {
+        tracing::warn!("{missing}");
+        readiness.problems.push(missing);
+    }
     match build_vlm_grounder(cfg, detector) {
         Ok(g) => {
             let g = Arc::new(g);
@@ -202,6 +206,22 @@ fn build_grounder(
     }
 }
 
+/// What the VLM settings lack for a job to get an answer: a hosted endpoint needs a key,
+/// and without a key the base URL must name a local server.
+fn vlm_missing(vlm: &crate::vlm::VlmConfig) -> Option<String> {
+    if vlm.base_url.trim().is_empty() {
+        return Some("no VLM base URL is set (vlm.base_url, GROUNDER_VLM_BASE_URL)".to_string());
+    }
+    if vlm.api_key.is_empty() && vlm.base_url == crate::vlm::config::DEFAULT_BASE_URL {
+        return Some(format!(
+            "no VLM API key is set for {} (vlm.api_key, GROUNDER_VLM_API_KEY or OPENAI_API_KEY), \
+             and no other base URL (vlm.base_url, GROUNDER_VLM_BASE_URL) names a server without keys",
+            vlm.base_url
+        ));
+    }
+    None
+}
+
 fn build_vlm_grounder(
     cfg: &Config,
     detector: Option<Arc<dyn Detector>>,
@@ -215,7 +235,7 @@ fn build_vlm_grounder(
     let segmenter = crate::vision::build_segmenter(&cfg.segmenter, &cfg.vision())?;
     let prompts =
         Prompts::load(cfg.prompts_dir.as_deref()).map_err(|e| anyhow::anyhow!("prompts: {e}"))?;
-    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_else(VlmConfig::from_env))
+    let client = VlmClient::new(cfg.vlm.clone().unwrap_or_default())
         .map_err(|e| anyhow::anyhow!("VLM client: {e}"))?;
     Ok(VlmGrounder::new(
         client,
@@ -237,8 +257,13 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
 }
 
 async fn shutdown_signal() {
+    // A handler that cannot be installed must not end the service: log it and wait on
+    // the other signal (or forever).
     let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!("cannot listen for Ctrl-C, serving on: {e}");
+            std::future::pending::<()>().await;
+        }
     };
     #[cfg(unix)]
     let term = async {
@@ -246,11 +271,42 @@ async fn shutdown_signal() {
             Ok(mut s) => {
                 s.recv().await;
             }
-            Err(_) => std::future::pending::<()>().await,
+            Err(e) => {
+                tracing::error!("cannot listen for SIGTERM, serving on: {e}");
+                std::future::pending::<()>().await
+            }
         }
     };
     #[cfg(not(unix))]
     let term = std::future::pending::<()>();
     tokio::select! { _ = ctrl_c => {}, _ = term => {} }
     tracing::info!("shutting down: running jobs will be resumed at next start");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::vlm_missing;
+    use crate::vlm::{ApiKey, VlmConfig};
+
+    #[test]
+    fn readiness_names_a_missing_vlm_key_or_base_url() {
+        let hosted = VlmConfig::default();
+        let msg = vlm_missing(&hosted).unwrap_or_default();
+        assert!(msg.contains("GROUNDER_VLM_API_KEY"), "{msg}");
+        let keyed = VlmConfig {
+            api_key: ApiKey::new("sk-x"),
+            ..VlmConfig::default()
+        };
+        assert_eq!(vlm_missing(&keyed), None);
+        let local = VlmConfig {
+            base_url: "http://127.0.0.1:8000/v1".into(),
+            ..VlmConfig::default()
+        };
+        assert_eq!(vlm_missing(&local), None);
+        let empty = VlmConfig {
+            base_url: " ".into(),
+            ..keyed
+        };
+        assert!(vlm_missing(&empty).unwrap_or_default().contains("base URL"));
+    }
 }

@@ -8,7 +8,7 @@ use image::RgbImage;
 use serde_json::{json, Value};
 use std::time::Instant;
 
-use super::grounding::Conversation;
+use super::conversation::Conversation;
 use super::{step, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
 use crate::stitch::annotate::annotate_instances;

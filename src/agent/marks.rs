@@ -7,7 +7,7 @@ use image::RgbImage;
 use serde_json::json;
 use std::time::Instant;
 
-use super::grounding::Conversation;
+use super::conversation::Conversation;
 use super::instance::{self, SelectKind};
 use super::proposal::{not_here, BoxSource, Outcome};
 use super::{step, VlmGrounder};

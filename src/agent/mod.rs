@@ -3,6 +3,7 @@
 //! (→ instance selection) → segmentation + multi-view ensemble projection.
 //! Every stage appends a step `{step, inputs, outputs, ms}` to the job's trace.
 
+pub mod conversation;
 pub mod exports;
 pub mod grounding;
 pub mod instance;

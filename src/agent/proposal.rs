@@ -13,7 +13,8 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use std::time::Instant;
 
-use super::grounding::{redetect, Conversation};
+use super::conversation::Conversation;
+use super::grounding::redetect;
 use super::instance::{self, SelectKind};
 use super::preselect::{same_class, Preselection};
 use super::{marks, step, vlm_box, VlmGrounder};

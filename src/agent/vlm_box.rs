@@ -7,7 +7,7 @@ use image::RgbImage;
 use serde_json::{json, Value};
 use std::time::Instant;
 
-use super::grounding::Conversation;
+use super::conversation::Conversation;
 use super::proposal::{not_here, BoxSource, Outcome};
 use super::{step, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};

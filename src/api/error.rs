@@ -30,6 +30,15 @@ pub struct ApiError {
     pub retry_after: Option<u64>,
     /// Send `WWW-Authenticate: Bearer` (401).
     pub challenge: bool,
+    /// A 5xx whose detail is written for the caller (readiness, overload) and holds no
+    /// internal error text; any other 5xx answers a generic detail with an id.
+    pub public: bool,
+}
+
+/// The `detail` every 5xx answers unless it is [`ApiError::public`]: the id is logged at
+/// error level with the cause.
+pub fn internal_detail(id: &str) -> String {
+    format!("internal error, id {id}")
 }
 
 impl ApiError {
@@ -40,6 +49,14 @@ impl ApiError {
             detail: detail.into(),
             retry_after: None,
             challenge: false,
+            public: false,
+        }
+    }
+    /// 503 whose detail the caller may read (it must hold no internal error text).
+    pub fn unavailable(code: &'static str, detail: impl Into<String>) -> Self {
+        Self {
+            public: true,
+            ..Self::new(StatusCode::SERVICE_UNAVAILABLE, code, detail)
         }
     }
     /// 401 `unauthorized` with a `WWW-Authenticate: Bearer` challenge.
@@ -90,9 +107,14 @@ impl ApiError {
 }
 
 impl IntoResponse for ApiError {
-    fn into_response(self) -> Response {
-        if self.status.is_server_error() {
-            tracing::error!(code = self.code, "{}", self.detail);
+    fn into_response(mut self) -> Response {
+        // An overload answer (with Retry-After) says nothing internal either.
+        if self.status.is_server_error() && !self.public && self.retry_after.is_none() {
+            let id = uuid::Uuid::now_v7().simple().to_string();
+            tracing::error!(error_id = %id, code = self.code, "{}", self.detail);
+            self.detail = internal_detail(&id);
+        } else if self.status.is_server_error() {
+            tracing::warn!(code = self.code, "{}", self.detail);
         }
         let body = serde_json::to_vec(&self.problem()).unwrap_or_default();
         let mut resp = (

@@ -1,7 +1,7 @@
 //! Liveness, readiness and metrics.
 
 use axum::extract::State;
-use axum::http::{header, StatusCode};
+use axum::http::header;
 use axum::response::IntoResponse;
 use serde::Serialize;
 
@@ -26,8 +26,7 @@ pub async fn healthz() -> axum::Json<Health> {
 #[utoipa::path(get, path = "/readyz", tag = "health", responses((status = 200, body = Health), (status = 503, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>, ApiError> {
     if !state.store.ping().await {
-        return Err(ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
+        return Err(ApiError::unavailable(
             "database_unavailable",
             "the database does not answer",
         ));
@@ -42,11 +41,7 @@ pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>,
         problems.push(p);
     }
     if !problems.is_empty() {
-        return Err(ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "not_ready",
-            problems.join("; "),
-        ));
+        return Err(ApiError::unavailable("not_ready", problems.join("; ")));
     }
     Ok(axum::Json(Health {
         status: "ready".into(),

@@ -44,9 +44,9 @@ pub struct Detection {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct VisionConfig {
-    /// Detector spec (`GROUNDER_DETECTOR`), e.g. "centernet", "yolo:/m.onnx", "oracle".
+    /// Detector spec (key `detector`), e.g. "centernet", "yolo:/m.onnx", "oracle".
     pub detector: String,
-    /// Segmenter spec (`GROUNDER_SEGMENTER`), e.g. "depth", "box", "sam:enc.onnx,dec.onnx".
+    /// Segmenter spec (key `segmenter`), e.g. "depth", "box", "sam:enc.onnx,dec.onnx".
     pub segmenter: String,
     /// Path of libonnxruntime (else `ORT_DYLIB_PATH`, else ./.ort/).
     pub ort_dylib: Option<PathBuf>,
@@ -78,32 +78,6 @@ impl Default for VisionConfig {
 }
 
 impl VisionConfig {
-    /// Defaults overridden by `GROUNDER_DETECTOR`, `GROUNDER_SEGMENTER`,
-    /// `GROUNDER_VISION_CONCURRENCY`, `GROUNDER_MODEL_DIR`.
-    pub fn from_env() -> Self {
-        let mut c = Self::default();
-        if let Ok(v) = std::env::var("GROUNDER_DETECTOR") {
-            if !v.trim().is_empty() {
-                c.detector = v.trim().to_string();
-            }
-        }
-        if let Ok(v) = std::env::var("GROUNDER_SEGMENTER") {
-            if !v.trim().is_empty() {
-                c.segmenter = v.trim().to_string();
-            }
-        }
-        if let Some(n) = std::env::var("GROUNDER_VISION_CONCURRENCY")
-            .ok()
-            .and_then(|v| v.parse().ok())
-        {
-            c.concurrency = n;
-        }
-        if let Ok(v) = std::env::var("GROUNDER_MODEL_DIR") {
-            c.model_dir = PathBuf::from(v);
-        }
-        c
-    }
-
     pub(crate) fn session_options(&self) -> runtime::SessionOptions {
         runtime::SessionOptions {
             intra_threads: self.intra_threads.max(1),

@@ -51,7 +51,7 @@ pub enum AuthStyle {
 
 /// Settings of the chat-completions client. Defaults follow REFERENCE-PARAMS.md.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct VlmConfig {
     /// Base URL up to and including the API version path, e.g. `http://127.0.0.1:8000/v1`
     /// or an Azure deployment URL with `?api-version=...`; `/chat/completions` is appended
@@ -186,12 +186,6 @@ impl Default for VlmConfig {
 }
 
 impl VlmConfig {
-    /// Defaults overridden by the environment: `GROUNDER_VLM_BASE_URL`,
-    /// `GROUNDER_VLM_MODEL`, `GROUNDER_VLM_API_KEY` (else `OPENAI_API_KEY`).
-    pub fn from_env() -> Self {
-        Self::default().with_env(|k| std::env::var(k).ok())
-    }
-
     /// Apply environment-style overrides from any lookup function (testable).
     pub fn with_env(mut self, get: impl Fn(&str) -> Option<String>) -> Self {
         let nonempty = |k: &str| get(k).filter(|v| !v.trim().is_empty());

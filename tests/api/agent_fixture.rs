@@ -17,7 +17,7 @@ pub const API_KEY: &str = "sk-agenttest-SECRET-42";
 pub const SEED: u64 = 3;
 
 /// The scene tar, generated once per test binary.
-fn scene_tar() -> &'static (PathBuf, SynthScene) {
+pub fn scene_tar() -> &'static (PathBuf, SynthScene) {
     static SCENE: OnceLock<(PathBuf, SynthScene)> = OnceLock::new();
     SCENE.get_or_init(|| {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("agent-tests-scene");

@@ -4,6 +4,7 @@
 //! and cancellation.
 
 mod bench_sse;
+mod config;
 mod events;
 mod format_writers;
 mod formats;
@@ -12,6 +13,7 @@ mod frames;
 mod helpers;
 mod hostile;
 mod idempotency;
+mod internal_errors;
 mod jobs;
 mod keys;
 mod llama_cpp;
