@@ -56,6 +56,10 @@ pub struct Config {
     pub allow_anonymous: bool,
     /// Accept webhook URLs on loopback and private addresses (tests, closed networks).
     pub webhook_allow_private: bool,
+    /// Fault injection for the crash tests: pause this long between the steps of a scene
+    /// import or delete (env `GROUNDER_TEST_STEP_PAUSE_MS`; 0, the default, in service).
+    #[serde(skip)]
+    pub test_step_pause_ms: u64,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
     /// VLM client settings used instead of `VlmConfig::from_env()` when set (tests and
@@ -83,6 +87,7 @@ impl Default for Config {
             prompts_dir: None,
             allow_anonymous: false,
             webhook_allow_private: false,
+            test_step_pause_ms: 0,
             agent: crate::agent::AgentParams::default(),
             vlm: None,
         }
@@ -174,6 +179,7 @@ impl Config {
         num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;
         num("GROUNDER_MAX_ARCHIVE_FILES", &mut self.max_archive_files)?;
         num("GROUNDER_MAX_IMAGE_PIXELS", &mut self.max_image_pixels)?;
+        num("GROUNDER_TEST_STEP_PAUSE_MS", &mut self.test_step_pause_ms)?;
         Ok(())
     }
 }

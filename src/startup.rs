@@ -39,8 +39,11 @@ impl Application {
         }
         // No request of the previous process is still in flight.
         store.idempotency_release_in_flight().await?;
-        // Leftovers of uploads interrupted by a crash.
-        let _ = std::fs::remove_dir_all(cfg.data_dir.join("tmp"));
+        // Leftovers of uploads, imports and deletes interrupted by a crash.
+        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir).await?;
+        if !swept.is_empty() {
+            tracing::info!(?swept, "cleaned up after the previous process");
+        }
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
         let detector = load_detector(&cfg, &mut readiness);

@@ -4,6 +4,7 @@
 //! and cancellation.
 
 mod bench_sse;
+mod crash;
 mod events;
 mod format_writers;
 mod formats;
