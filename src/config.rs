@@ -40,6 +40,9 @@ pub struct Config {
     pub workers: usize,
     /// Attempts before a job that keeps dying with the process is failed.
     pub max_attempts: i64,
+    /// Indexing attempts before a scene whose indexing keeps dying with the process (out
+    /// of memory, a crashing model) ends `failed` instead of being resumed again.
+    pub max_index_attempts: i64,
     /// The pipeline the workers run: "vlm" (the method) or "test:delay_ms=N" (testing).
     pub pipeline: String,
     /// Detector used to index uploaded scenes ("none" to skip indexing).
@@ -79,6 +82,7 @@ impl Default for Config {
             max_image_pixels: crate::scene::import::DEFAULT_MAX_IMAGE_PIXELS,
             workers: 2,
             max_attempts: 3,
+            max_index_attempts: 3,
             pipeline: "vlm".into(),
             detector: "centernet".into(),
             segmenter: "depth".into(),
@@ -179,6 +183,7 @@ impl Config {
         num("GROUNDER_MAX_UNPACKED_BYTES", &mut self.max_unpacked_bytes)?;
         num("GROUNDER_MAX_ARCHIVE_FILES", &mut self.max_archive_files)?;
         num("GROUNDER_MAX_IMAGE_PIXELS", &mut self.max_image_pixels)?;
+        num("GROUNDER_MAX_INDEX_ATTEMPTS", &mut self.max_index_attempts)?;
         num("GROUNDER_TEST_STEP_PAUSE_MS", &mut self.test_step_pause_ms)?;
         Ok(())
     }

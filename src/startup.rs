@@ -100,7 +100,12 @@ impl Application {
             detector_needs_instances: needs_instances,
             auth: Arc::new(api::auth::Auth::new(anonymous)),
         };
-        crate::jobs::indexing::resume(&state.store, &state.on_scene_stored).await?;
+        crate::jobs::indexing::resume(
+            &state.store,
+            &state.on_scene_stored,
+            state.cfg.max_index_attempts,
+        )
+        .await?;
         state.jobs.start();
         Ok(Self { listener, state })
     }

@@ -99,4 +99,33 @@ impl Store {
         }
         Ok(r.rows_affected())
     }
+
+    /// Count the start of an indexing attempt of a scene; returns the attempts so far.
+    pub async fn begin_index_attempt(&self, id: &str) -> Result<i64, StoreError> {
+        let n: Option<i64> = sqlx::query_scalar(
+            "UPDATE scenes SET index_attempts = index_attempts + 1 WHERE id = ? RETURNING index_attempts",
+        )
+        .bind(id)
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(n.unwrap_or(0))
+    }
+
+    /// Indexing ended (either way): the next indexing starts counting afresh.
+    pub async fn end_index_attempts(&self, id: &str) -> Result<(), StoreError> {
+        sqlx::query("UPDATE scenes SET index_attempts = 0 WHERE id = ?")
+            .bind(id)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    /// Scenes left `indexing` by a previous process, with their attempts so far.
+    pub async fn interrupted_indexing(&self) -> Result<Vec<(String, i64)>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT id, index_attempts FROM scenes WHERE status = 'indexing' ORDER BY id",
+        )
+        .fetch_all(&self.pool)
+        .await?)
+    }
 }

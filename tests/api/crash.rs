@@ -302,3 +302,79 @@ async fn sigkill_at_random_points_leaves_nothing_orphaned_lost_or_stuck() {
         "the traffic reached the server"
     );
 }
+
+/// A scene whose indexing dies with the process every time ends `failed` with the reason
+/// after `max_index_attempts` (3) instead of being resumed forever; a job queued on it fails.
+#[tokio::test]
+async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let slow = [("GROUNDER_DETECTOR", "oracle:delay_ms=400")];
+    let c = reqwest::Client::new();
+    let mut s = start(&data, &slow);
+    let r = c
+        .post(format!("{}/v1/scenes", s.base))
+        .header("content-type", "application/x-tar")
+        .body(scene_with_masks(8))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let job: Value = c
+        .post(format!("{}/v1/jobs", s.base))
+        .json(&serde_json::json!({"scene_id": id, "query": "the bed"}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let jid = job["id"].as_str().unwrap().to_string();
+    for attempt in 1..=3 {
+        if attempt > 1 {
+            s = start(&data, &slow);
+        }
+        // Killed while indexing (each frame takes 400 ms; 7 usable frames).
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let (st, j) = {
+            let r = c
+                .get(format!("{}/v1/scenes/{id}", s.base))
+                .send()
+                .await
+                .unwrap();
+            (r.status().as_u16(), r.json::<Value>().await.unwrap())
+        };
+        assert_eq!((st, j["status"].as_str()), (200, Some("indexing")), "{j}");
+        kill(&mut s.child, "-KILL");
+    }
+    let mut s = start(&data, &slow);
+    let j: Value = c
+        .get(format!("{}/v1/scenes/{id}", s.base))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(j["status"], "failed", "{j}");
+    let why = j["error"].as_str().unwrap_or_default();
+    assert!(why.contains("interrupted 3 times"), "{why}");
+    let job: Value = c
+        .get(format!("{}/v1/jobs/{jid}", s.base))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        (job["status"].as_str(), job["error"]["code"].as_str()),
+        (Some("failed"), Some("scene_failed")),
+        "{job}"
+    );
+    kill(&mut s.child, "-TERM");
+}
