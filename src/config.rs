@@ -59,6 +59,9 @@ pub struct Config {
     pub job_memory_mb: u64,
     /// Attempts before a job that keeps dying with the process is failed.
     pub max_attempts: i64,
+    /// Indexing attempts before a scene whose indexing keeps dying with the process (out
+    /// of memory, a crashing model) ends `failed` instead of being resumed again.
+    pub max_index_attempts: i64,
     /// The pipeline the workers run: "vlm" (the method) or "test:delay_ms=N" (testing).
     pub pipeline: String,
     /// Detector used to index uploaded scenes ("none" to skip indexing).
@@ -77,6 +80,9 @@ pub struct Config {
     pub allow_anonymous: bool,
     /// Accept webhook URLs on loopback and private addresses (tests, closed networks).
     pub webhook_allow_private: bool,
+    /// Fault injection for the crash tests: pause this long between the steps of a scene
+    /// import or delete (env `GROUNDER_TEST_STEP_PAUSE_MS`; 0, the default, in service).
+    pub test_step_pause_ms: u64,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
     /// VLM client settings (`[vlm]` table); [`load`] always sets them, a `Config` built in
@@ -99,6 +105,7 @@ impl Default for Config {
             max_memory_mb: 0,
             job_memory_mb: crate::jobs::worker::DEFAULT_JOB_MEMORY_MB,
             max_attempts: 3,
+            max_index_attempts: 3,
             pipeline: "vlm".into(),
             detector: "centernet".into(),
             segmenter: "depth".into(),
@@ -108,6 +115,7 @@ impl Default for Config {
             prompts_dir: None,
             allow_anonymous: false,
             webhook_allow_private: false,
+            test_step_pause_ms: 0,
             agent: crate::agent::AgentParams::default(),
             vlm: None,
         }

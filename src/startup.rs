@@ -39,8 +39,11 @@ impl Application {
         }
         // No request of the previous process is still in flight.
         store.idempotency_release_in_flight().await?;
-        // Leftovers of uploads interrupted by a crash.
-        let _ = std::fs::remove_dir_all(cfg.data_dir.join("tmp"));
+        // Leftovers of uploads, imports and deletes interrupted by a crash.
+        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir).await?;
+        if !swept.is_empty() {
+            tracing::info!(?swept, "cleaned up after the previous process");
+        }
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
         let detector = load_detector(&cfg)?;
@@ -99,7 +102,12 @@ impl Application {
             detector_needs_instances: needs_instances,
             auth: Arc::new(api::auth::Auth::new(anonymous)),
         };
-        crate::jobs::indexing::resume(&state.store, &state.on_scene_stored).await?;
+        crate::jobs::indexing::resume(
+            &state.store,
+            &state.on_scene_stored,
+            state.cfg.max_index_attempts,
+        )
+        .await?;
         state.jobs.start();
         Ok(Self { listener, state })
     }

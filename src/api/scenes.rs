@@ -128,6 +128,10 @@ pub async fn upload(
     let hash = hex::encode(hasher.finalize());
     let st = state.clone();
     let owner = caller.key_id;
+    // Without an Idempotency-Key nobody could learn the outcome once the client is gone:
+    // the import is then undone instead of leaving a scene nobody knows of.
+    let client_gone = tokio_util::sync::CancellationToken::new();
+    let _gone_on_drop = idem_key.is_none().then(|| client_gone.clone().drop_guard());
     idempotency::run(
         &state,
         &caller,
@@ -135,43 +139,58 @@ pub async fn upload(
         idem_key,
         &hash,
         async move {
-            let _upload_guard = upload_guard;
-            import(st, owner, id, upload_path, content_type, total, capture).await
+            // Its own task: a client going away never stops an import half-way.
+            let upload = Spooled {
+                path: upload_path,
+                _guard: upload_guard,
+                content_type,
+                bytes: total,
+            };
+            tokio::spawn(import(st, owner, id, upload, capture, client_gone))
+                .await
+                .map_err(|e| ApiError::internal(format!("import task failed: {e}")))?
         },
     )
     .await
 }
 
-/// Unpack, validate and store a spooled upload.
+/// An upload spooled under `<data>/tmp` (removed when this is dropped).
+struct Spooled {
+    path: std::path::PathBuf,
+    _guard: Cleanup,
+    content_type: Option<String>,
+    bytes: u64,
+}
+
+/// Unpack, validate and store a spooled upload. The scene's row is written first, hidden
+/// (`importing`); then its files, validated in a staging folder, are renamed into place in
+/// one step; then the row turns `indexing` or `ready`. Any failure after the row exists
+/// removes files and row; a crash leaves a hidden row that the start-up sweep removes.
 async fn import(
     state: AppState,
     owner: Option<i64>,
     id: String,
-    upload_path: std::path::PathBuf,
-    content_type: Option<String>,
-    total: u64,
+    upload: Spooled,
     capture: crate::jobs::ingest::Capture,
+    client_gone: tokio_util::sync::CancellationToken,
 ) -> Result<Response, ApiError> {
     let tmp = state.cfg.data_dir.join("tmp");
     let limits = limits(&state);
     let work_dir = tmp.join(&id);
-    let scene_dir = state.jobs.scene_dir(&id);
-    let (up, sd) = (upload_path.clone(), scene_dir.clone());
+    let staged = tmp.join(format!("{id}.scene"));
+    let _staged_guard = Cleanup(Some(staged.clone()));
+    let (up, sd, ct) = (
+        upload.path.clone(),
+        staged.clone(),
+        upload.content_type.clone(),
+    );
     let scene = tokio::task::spawn_blocking(move || {
-        prepare_scene(
-            &up,
-            content_type.as_deref(),
-            &work_dir,
-            &sd,
-            limits,
-            &capture,
-        )
+        prepare_scene(&up, ct.as_deref(), &work_dir, &sd, limits, &capture)
     })
     .await
     .map_err(|e| ApiError::internal(format!("import task failed: {e}")))??;
 
     if state.detector_needs_instances && !scene.frames.iter().any(|f| f.instance_path.is_some()) {
-        let _ = std::fs::remove_dir_all(&scene_dir);
         return Err(ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "instance_masks_required", format!("the configured detector {:?} reads ground-truth instance masks (instance/<frame>.png + instance/labels.json) and this scene has none", state.cfg.detector)));
     }
     let detector = (state.cfg.detector != "none").then_some(state.cfg.detector.as_str());
@@ -180,19 +199,42 @@ async fn import(
     } else {
         "ready"
     };
-    let mut scene_guard = Cleanup(Some(scene_dir));
+    if client_gone.is_cancelled() {
+        return Err(gone());
+    }
     state
         .store
         .insert_scene(
             &id,
             &scene,
-            status,
+            "importing",
             detector.filter(|_| status == "indexing"),
             owner,
-            total,
+            upload.bytes,
         )
         .await?;
-    scene_guard.disarm();
+    drop(upload);
+    test_pause(&state).await;
+    let scene_dir = state.jobs.scene_dir(&id);
+    let placed = place(&staged, &scene_dir).await;
+    test_pause(&state).await;
+    let placed = match placed {
+        Err(e) => Err(ApiError::internal(format!("cannot store the scene: {e}"))),
+        Ok(()) if client_gone.is_cancelled() => Err(gone()),
+        Ok(()) => match state.store.publish_scene(&id, status).await {
+            Ok(true) => Ok(()),
+            Ok(false) => Err(ApiError::internal("the scene was removed while importing")),
+            Err(e) => Err(e.into()),
+        },
+    };
+    if let Err(e) = placed {
+        if let Err(u) =
+            crate::jobs::sweep::finish_removal(&state.store, &state.cfg.data_dir, &id).await
+        {
+            tracing::error!(scene = %id, "cannot undo a failed import (the next start will): {u:#}");
+        }
+        return Err(e);
+    }
     // Read the record before indexing starts, so the answer shows the scene as stored,
     // not a state a fast indexer reached meanwhile.
     let record = state.store.get_scene(&id).await;
@@ -209,6 +251,30 @@ async fn import(
         axum::Json(record),
     )
         .into_response())
+}
+
+/// Fault injection for the crash tests (`test_step_pause_ms`; no pause in service).
+pub(super) async fn test_pause(state: &AppState) {
+    let ms = state.cfg.test_step_pause_ms;
+    if ms > 0 {
+        tokio::time::sleep(std::time::Duration::from_millis(ms)).await;
+    }
+}
+
+/// Move a staged scene folder into place in one rename.
+async fn place(staged: &std::path::Path, scene_dir: &std::path::Path) -> std::io::Result<()> {
+    if let Some(parent) = scene_dir.parent() {
+        tokio::fs::create_dir_all(parent).await?;
+    }
+    tokio::fs::rename(staged, scene_dir).await
+}
+
+/// The answer nobody reads: the client disconnected before its scene was stored.
+fn gone() -> ApiError {
+    ApiError::bad_request(
+        "client_gone",
+        "the client disconnected before the scene was stored; nothing was kept",
+    )
 }
 
 /// Suggested wait after a storage quota refusal.
@@ -278,17 +344,12 @@ pub async fn delete(
         ));
     }
     state.jobs.forget_scene(&id);
-    let dir = state.jobs.scene_dir(&id);
-    // A background writer (the scene's points being cached) may add a file while the
-    // folder is emptied, which fails the removal with "directory not empty": try again.
-    for _ in 0..5 {
-        match tokio::fs::remove_dir_all(&dir).await {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound && dir.exists() => {
-                tracing::debug!(scene = %id, "removing the scene's folder again: {e}");
-                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-            }
-            _ => break,
-        }
+    test_pause(&state).await;
+    // The row is `deleting` (hidden); files go first, then the row. Should this stop
+    // half-way, the start-up sweep finishes it.
+    if let Err(e) = crate::jobs::sweep::finish_removal(&state.store, &state.cfg.data_dir, &id).await
+    {
+        tracing::error!(scene = %id, "the scene's files could not all be removed; the next start finishes: {e:#}");
     }
     Ok(StatusCode::NO_CONTENT)
 }

@@ -112,6 +112,9 @@ pub fn hook(
             candidates.clone(),
         );
         tokio::spawn(async move {
+            if let Err(e) = store.begin_index_attempt(&scene_id).await {
+                tracing::error!(scene = %scene_id, "cannot count the indexing attempt: {e}");
+            }
             let outcome = index_scene(&store, &jobs, &scene_id, &key, detector, cands, from).await;
             if outcome.is_ok() {
                 jobs.warm_scene_points(&scene_id);
@@ -120,10 +123,12 @@ pub fn hook(
                 Ok(()) => ("ready", None),
                 Err(e) => ("failed", Some(format!("{e:#}"))),
             };
-            if let Err(e) = store
-                .set_scene_status(&scene_id, status, err.as_deref())
-                .await
-            {
+            let ended = store.end_index_attempts(&scene_id).await;
+            if let Err(e) = ended.and(
+                store
+                    .set_scene_status(&scene_id, status, err.as_deref())
+                    .await,
+            ) {
                 tracing::error!(scene = %scene_id, "cannot record indexing outcome: {e}");
             }
             if status == "failed" {
@@ -143,12 +148,24 @@ pub fn hook(
     })
 }
 
-/// Restart indexing of scenes a previous process left half-indexed.
-pub async fn resume(store: &Store, hook: &IndexHook) -> anyhow::Result<()> {
-    store.fail_queued_jobs_of_failed_scenes().await?;
-    for id in store.scenes_with_status("indexing").await? {
-        hook(id, 0);
+/// Restart indexing of scenes a previous process left half-indexed. A scene whose indexing
+/// was interrupted `max_attempts` times (each time the process died: out of memory, a
+/// crashing model) ends `failed` with the reason instead of being tried again.
+pub async fn resume(store: &Store, hook: &IndexHook, max_attempts: i64) -> anyhow::Result<()> {
+    for (id, attempts) in store.interrupted_indexing().await? {
+        if attempts >= max_attempts.max(1) {
+            let why = format!(
+                "indexing was interrupted {attempts} times (the process stopped during it each \
+                 time, for example out of memory); given up after max_index_attempts = {max_attempts}"
+            );
+            tracing::error!(scene = %id, "{why}");
+            store.set_scene_status(&id, "failed", Some(&why)).await?;
+            store.end_index_attempts(&id).await?;
+        } else {
+            hook(id, 0);
+        }
     }
+    store.fail_queued_jobs_of_failed_scenes().await?;
     Ok(())
 }
 

@@ -5,6 +5,7 @@ pub mod exports;
 pub mod indexing;
 pub mod ingest;
 pub mod scene_cache;
+pub mod sweep;
 pub mod test_grounder;
 pub mod webhooks;
 pub mod worker;

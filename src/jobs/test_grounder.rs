@@ -45,6 +45,10 @@ impl Grounder for TestGrounder {
                     json!({"query": ctx.query, "frames": ctx.scene.frames.len()}),
                 )
                 .await;
+            // An artifact, as the real pipeline writes (tests of retention and deletes).
+            ctx.trace
+                .artifact("test.txt", ctx.query.clone().into_bytes())
+                .await?;
             if ctx.query.contains("[panic]") {
                 // A test hook: a bug in a pipeline must end its job, not the worker.
                 panic!("the test pipeline panics on queries containing [panic]");

@@ -6,6 +6,7 @@ pub mod frames;
 pub mod idempotency;
 pub mod jobs;
 pub mod keys;
+pub mod lifecycle;
 pub mod scenes;
 pub mod webhooks;
 

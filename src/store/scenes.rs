@@ -14,6 +14,10 @@ use crate::scene::model::{decompress_depth, pose_from_blob, pose_to_blob};
 use crate::scene::{FrameData, SceneData};
 use crate::vision::Detection;
 
+/// Scene states no reader sees: the row exists only so that a crash mid-import or
+/// mid-delete can be finished at start-up (see `store::lifecycle`).
+pub(crate) const HIDDEN_STATES: &str = "('importing', 'deleting')";
+
 /// Detector key under which class-agnostic candidates are cached.
 pub const CANDIDATES_KEY: &str = "candidates";
 /// Label of the row that marks a frame indexed with candidates where none were found.
@@ -192,10 +196,12 @@ impl Store {
     }
 
     pub async fn get_scene(&self, id: &str) -> Result<Option<SceneRecord>, StoreError> {
-        let Some(row) = sqlx::query("SELECT * FROM scenes WHERE id = ?")
-            .bind(id)
-            .fetch_optional(&self.pool)
-            .await?
+        let Some(row) = sqlx::query(&format!(
+            "SELECT * FROM scenes WHERE id = ? AND status NOT IN {HIDDEN_STATES}"
+        ))
+        .bind(id)
+        .fetch_optional(&self.pool)
+        .await?
         else {
             return Ok(None);
         };
@@ -205,9 +211,10 @@ impl Store {
 
     /// Scenes, oldest first; only `owner`'s when given.
     pub async fn list_scenes(&self, owner: Option<i64>) -> Result<Vec<SceneRecord>, StoreError> {
-        let rows = sqlx::query(
-            "SELECT * FROM scenes WHERE ?1 IS NULL OR owner = ?1 ORDER BY created_at, id",
-        )
+        let rows = sqlx::query(&format!(
+            "SELECT * FROM scenes WHERE (?1 IS NULL OR owner = ?1) AND status NOT IN {HIDDEN_STATES} \
+             ORDER BY created_at, id"
+        ))
         .bind(owner)
         .fetch_all(&self.pool)
         .await?;
@@ -219,9 +226,11 @@ impl Store {
         Ok(out)
     }
 
-    /// Delete a scene unless a job on it is queued or running; returns false when refused.
+    /// Start deleting a scene unless a job on it is running: its queued jobs are canceled
+    /// and the row turns `deleting` (hidden from readers). Returns false when refused. The
+    /// caller removes the files, then the row ([`Store::remove_deleting_scene`]); a crash in
+    /// between is finished by the start-up sweep.
     pub async fn delete_scene_if_idle(&self, id: &str) -> Result<bool, StoreError> {
-        // Cancels and deletes the scene's jobs.
         let r = self.delete_scene_if_idle_tx(id).await;
         self.job_cache.invalidate();
         self.events.changed_all();
@@ -248,7 +257,7 @@ impl Store {
             .bind(id)
             .execute(&mut *tx)
             .await?;
-        sqlx::query("DELETE FROM scenes WHERE id = ?")
+        sqlx::query("UPDATE scenes SET status = 'deleting' WHERE id = ?")
             .bind(id)
             .execute(&mut *tx)
             .await?;
@@ -262,12 +271,16 @@ impl Store {
         status: &str,
         error: Option<&str>,
     ) -> Result<(), StoreError> {
-        sqlx::query("UPDATE scenes SET status = ?, error = ? WHERE id = ?")
-            .bind(status)
-            .bind(error)
-            .bind(id)
-            .execute(&self.pool)
-            .await?;
+        // A scene being imported or deleted keeps that state (an indexer racing a delete
+        // must not bring the row back).
+        sqlx::query(&format!(
+            "UPDATE scenes SET status = ?, error = ? WHERE id = ? AND status NOT IN {HIDDEN_STATES}"
+        ))
+        .bind(status)
+        .bind(error)
+        .bind(id)
+        .execute(&self.pool)
+        .await?;
         Ok(())
     }
 
@@ -371,7 +384,7 @@ impl Store {
             .bind(CANDIDATES_KEY)
             .execute(&mut *tx)
             .await?;
-        sqlx::query("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ?")
+        sqlx::query(&format!("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ? AND status NOT IN {HIDDEN_STATES}"))
             .bind(detector)
             .bind(total as i64)
             .bind(scene_id)

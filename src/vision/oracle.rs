@@ -23,15 +23,19 @@ pub struct OracleDetector {
     pub jitter: f64,
     /// Random seed (combined with the frame key).
     pub seed: u64,
+    /// Sleep this long per frame (tests: indexing slow enough to be interrupted).
+    pub delay_ms: u64,
 }
 
 impl OracleDetector {
-    /// Parse "miss=0.1,jitter=0.05,seed=1" (all optional; empty = perfect boxes).
+    /// Parse "miss=0.1,jitter=0.05,seed=1,delay_ms=0" (all optional; empty = perfect
+    /// boxes, no delay).
     pub fn from_spec(spec: &str) -> Result<Self> {
         let mut o = Self {
             miss: 0.0,
             jitter: 0.0,
             seed: 0,
+            delay_ms: 0,
         };
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let (k, v) = part
@@ -51,7 +55,15 @@ impl OracleDetector {
                         .parse()
                         .map_err(|_| anyhow!("oracle seed `{v}` is not an integer"))?
                 }
-                other => bail!("unknown oracle option `{other}` (expected miss, jitter, seed)"),
+                "delay_ms" => {
+                    o.delay_ms = v
+                        .trim()
+                        .parse()
+                        .map_err(|_| anyhow!("oracle delay_ms `{v}` is not an integer"))?
+                }
+                other => {
+                    bail!("unknown oracle option `{other}` (expected miss, jitter, seed, delay_ms)")
+                }
             }
         }
         if !(0.0..=1.0).contains(&o.miss) || !(0.0..=1.0).contains(&o.jitter) {
@@ -89,6 +101,9 @@ impl Detector for OracleDetector {
         let (Some(inst), Some(labels)) = (input.instances, input.labels) else {
             bail!("the oracle detector needs the scene's instance masks and labels.json");
         };
+        if self.delay_ms > 0 {
+            std::thread::sleep(std::time::Duration::from_millis(self.delay_ms));
+        }
         if inst.data.len() != inst.width as usize * inst.height as usize {
             bail!(
                 "instance mask buffer does not match its {}x{} size",

@@ -5,6 +5,7 @@
 
 mod bench_sse;
 mod config;
+mod crash;
 mod events;
 mod format_writers;
 mod formats;

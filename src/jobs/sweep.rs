@@ -1,0 +1,127 @@
+//! Keeping the data dir and the store in step. A scene's files exist only while its row
+//! does: deletes remove the files between marking the row `deleting` and removing it, and
+//! at start-up [`reconcile`] finishes what a crash interrupted (rows left `importing` or
+//! `deleting`, folders without a row, artifacts without a job, spooled uploads).
+
+use std::path::{Path, PathBuf};
+
+use crate::store::Store;
+
+/// What a sweep removed.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct Swept {
+    /// Rows left `importing` by an interrupted upload (removed with their files).
+    pub imports_undone: usize,
+    /// Rows left `deleting` by an interrupted delete (their delete finished).
+    pub deletes_finished: usize,
+    /// Scene folders no row knows.
+    pub orphan_folders: usize,
+    /// Half-written files inside kept scene folders.
+    pub partial_files: usize,
+    /// Artifact folders of jobs that no longer exist.
+    pub orphan_artifacts: usize,
+    /// Queued jobs whose scene is gone, canceled.
+    pub jobs_canceled: u64,
+}
+
+impl Swept {
+    pub fn is_empty(&self) -> bool {
+        *self == Self::default()
+    }
+}
+
+fn scenes_root(data_dir: &Path) -> PathBuf {
+    data_dir.join("scenes")
+}
+
+fn artifacts_root(data_dir: &Path) -> PathBuf {
+    data_dir.join("artifacts")
+}
+
+/// Remove a folder and everything in it; a missing folder is fine. A background writer
+/// (a preview, the cached points) may add a file while it is emptied, which fails the
+/// removal with "directory not empty": it is tried again a few times.
+pub async fn remove_dir(dir: &Path) -> std::io::Result<()> {
+    let mut last = Ok(());
+    for _ in 0..5 {
+        match tokio::fs::remove_dir_all(dir).await {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound && dir.exists() => {
+                tracing::debug!(dir = %dir.display(), "removing the folder again: {e}");
+                last = Err(e);
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+            _ => return Ok(()),
+        }
+    }
+    last
+}
+
+/// Remove a scene's folder and the artifacts of every job run on it.
+pub async fn remove_scene_files(store: &Store, data_dir: &Path, id: &str) -> anyhow::Result<()> {
+    for job in store.job_ids_of_scene(id).await? {
+        remove_dir(&artifacts_root(data_dir).join(job)).await?;
+    }
+    remove_dir(&scenes_root(data_dir).join(id)).await?;
+    Ok(())
+}
+
+/// Finish deleting a scene whose row is `deleting` (or undo an import left `importing`):
+/// files first, then the row. A crash at any point leaves the row hidden until the next
+/// sweep finishes the job.
+pub async fn finish_removal(store: &Store, data_dir: &Path, id: &str) -> anyhow::Result<()> {
+    remove_scene_files(store, data_dir, id).await?;
+    store.remove_hidden_scene(id).await?;
+    Ok(())
+}
+
+/// Names of the entries of a folder (none when it does not exist).
+fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
+    match std::fs::read_dir(dir) {
+        Ok(rd) => rd
+            .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+            .collect(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+        Err(e) => Err(e),
+    }
+}
+
+/// Reconcile the data dir with the store (run at start-up, before anything serves).
+pub async fn reconcile(store: &Store, data_dir: &Path) -> anyhow::Result<Swept> {
+    let mut out = Swept::default();
+    // Spooled uploads and unpack folders of requests that never finished.
+    remove_dir(&data_dir.join("tmp")).await?;
+    for (id, status) in store.hidden_scenes().await? {
+        finish_removal(store, data_dir, &id).await?;
+        if status == "importing" {
+            out.imports_undone += 1;
+        } else {
+            out.deletes_finished += 1;
+        }
+    }
+    let known = store.scene_ids().await?;
+    for name in entries(&scenes_root(data_dir))? {
+        let dir = scenes_root(data_dir).join(&name);
+        if !known.contains(&name) {
+            remove_dir(&dir).await?;
+            out.orphan_folders += 1;
+            continue;
+        }
+        // Half-written files (previews are written as `<name>.tmp`, then renamed).
+        for sub in ["color", "instance"] {
+            for f in entries(&dir.join(sub))? {
+                if f.ends_with(".tmp") {
+                    let _ = std::fs::remove_file(dir.join(sub).join(&f));
+                    out.partial_files += 1;
+                }
+            }
+        }
+    }
+    for name in entries(&artifacts_root(data_dir))? {
+        if !store.job_exists(&name).await? {
+            remove_dir(&artifacts_root(data_dir).join(&name)).await?;
+            out.orphan_artifacts += 1;
+        }
+    }
+    out.jobs_canceled = store.cancel_jobs_without_scene().await?;
+    Ok(out)
+}
