@@ -9,6 +9,7 @@ mod geometry_props;
 mod geometry_scene;
 mod geometry_synthetic;
 mod oracle_vlm;
+mod readme;
 mod stitch_plan;
 mod stitch_render;
 mod stitch_retrieval;
