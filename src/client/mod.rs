@@ -140,7 +140,9 @@ impl Service {
     }
 
     /// Follow a job to a terminal status, calling `on_step` once per new trace step; returns
-    /// the final job. Polls; an events stream would replace this loop only.
+    /// the final job. Reads the job's events stream (`/v1/jobs/{id}/events`: a `step` event
+    /// per trace step, `done` with the job); when the stream cannot be opened or breaks off
+    /// before `done`, polls the job instead, skipping the steps already shown.
     pub async fn follow_job(
         &self,
         id: &str,
@@ -149,6 +151,12 @@ impl Service {
     ) -> Result<Value> {
         let start = Instant::now();
         let mut seen = 0usize;
+        let streamed = tokio::time::timeout(timeout, self.stream_job(id, &mut seen, &mut on_step))
+            .await
+            .map_err(|_| anyhow::anyhow!("job {id} did not finish within {timeout:?}"))?;
+        if let Some(job) = streamed {
+            return Ok(job);
+        }
         loop {
             let job = self.get(&format!("/v1/jobs/{id}")).await?;
             if let Some(trace) = job["trace"].as_array() {
@@ -168,6 +176,57 @@ impl Service {
             }
             tokio::time::sleep(Duration::from_millis(250)).await;
         }
+    }
+
+    /// The job from its events stream's `done` event, `None` when the stream could not be
+    /// opened or ended first. `seen` counts the steps passed to `on_step`.
+    async fn stream_job(
+        &self,
+        id: &str,
+        seen: &mut usize,
+        on_step: &mut impl FnMut(&Value),
+    ) -> Option<Value> {
+        use futures::StreamExt;
+        let resp = self
+            .req(reqwest::Method::GET, &format!("/v1/jobs/{id}/events"))
+            .header("Accept", "text/event-stream")
+            .send()
+            .await
+            .ok()
+            .filter(|r| r.status().is_success())?;
+        let mut body = resp.bytes_stream();
+        let mut buf: Vec<u8> = Vec::new();
+        let (mut event, mut data) = (String::new(), String::new());
+        while let Some(chunk) = body.next().await {
+            buf.extend_from_slice(&chunk.ok()?);
+            while let Some(end) = buf.iter().position(|&b| b == b'\n') {
+                let line: Vec<u8> = buf.drain(..=end).collect();
+                let line = String::from_utf8_lossy(&line);
+                let line = line.trim_end_matches(['\n', '\r']);
+                if line.is_empty() {
+                    // One event complete.
+                    let value: Option<Value> = serde_json::from_str(&data).ok();
+                    match (event.as_str(), value) {
+                        ("step", Some(v)) => {
+                            on_step(&v);
+                            *seen += 1;
+                        }
+                        ("done", Some(v)) => return Some(v),
+                        _ => {}
+                    }
+                    event.clear();
+                    data.clear();
+                } else if let Some(v) = line.strip_prefix("event:") {
+                    event = v.trim().to_string();
+                } else if let Some(v) = line.strip_prefix("data:") {
+                    if !data.is_empty() {
+                        data.push('\n');
+                    }
+                    data.push_str(v.strip_prefix(' ').unwrap_or(v));
+                }
+            }
+        }
+        None
     }
 }
 
