@@ -186,15 +186,16 @@ pub fn fuse_views(
 
 /// Step 1 of [`fuse_views`]: the chamfer distance of each view to the anchor, both clouds
 /// voxel-downsampled by `params.chamfer_voxel`, and whether it passes the threshold.
-pub fn chamfer_decisions(
+pub fn chamfer_decisions<P: AsRef<[Point3<f64>]>>(
     anchor: &[Point3<f64>],
-    others: &[(usize, Vec<Point3<f64>>)],
+    others: &[(usize, P)],
     params: &GeometryParams,
 ) -> Vec<ViewDecision> {
     let anchor_ds = voxel_downsample(anchor, params.chamfer_voxel);
     others
         .iter()
         .map(|(index, pts)| {
+            let pts = pts.as_ref();
             let chamfer =
                 chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
             ViewDecision {

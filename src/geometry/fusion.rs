@@ -52,10 +52,8 @@ pub fn fuse_segmented(
     frames: &[(&FrameCamera, &DepthMap)],
     params: &GeometryParams,
 ) -> VotedFusion {
-    let other_pts: Vec<(usize, Vec<Point3<f64>>)> = others
-        .iter()
-        .map(|v| (v.index, v.points.to_vec()))
-        .collect();
+    let other_pts: Vec<(usize, &[Point3<f64>])> =
+        others.iter().map(|v| (v.index, v.points)).collect();
     let decisions = chamfer_decisions(anchor.points, &other_pts, params);
     let mut voters = vec![MaskView {
         camera: anchor.camera,

@@ -1,0 +1,301 @@
+//! Tests of [`super`].
+
+use super::*;
+use crate::geometry::camera::look_at_pose;
+use crate::geometry::Intrinsics;
+use nalgebra::{Matrix4, Vector3};
+
+fn gp() -> GeometryParams {
+    GeometryParams::default()
+}
+
+/// Points on a grid over [a0, a1] x [b0, b1] along axes (i, j), constant `c` on axis k.
+fn plane(
+    k: usize,
+    c: f64,
+    (i, a0, a1): (usize, f64, f64),
+    (j, b0, b1): (usize, f64, f64),
+    step: f64,
+) -> Vec<Point3<f64>> {
+    crate::geometry::test_grid::grid((a0, a1), (b0, b1), step, |a, b| {
+        let mut p = Point3::origin();
+        p[k] = c;
+        p[i] = a;
+        p[j] = b;
+        p
+    })
+}
+
+#[test]
+fn chair_seat_extends_to_the_floor_below() {
+    // Seat box 0.45..0.9 m high; floor at z = 0 visible around and under it.
+    let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
+    let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
+    let (e, moved) = extend_to_support(&b, b.center(), &floor, &[], true, &gp());
+    assert!((e.min[2] - 0.0).abs() < 1e-9, "{e:?}");
+    assert_eq!(moved.len(), 1);
+    assert_eq!((moved[0].axis, moved[0].side), ("z", "min"));
+    assert_eq!((e.min[0], e.max[0], e.max[2]), (1.0, 1.5, 0.9));
+}
+
+#[test]
+fn a_floor_lamps_shade_reaches_the_floor_through_its_pole_and_nothing_else_does() {
+    // Shade 1.3..1.65 m high; the floor around; a 3 cm pole under the shade's centre.
+    let b = Aabb::new([1.0, 1.0, 1.3], [1.4, 1.4, 1.65]);
+    let floor = plane(2, 0.0, (0, 0.6, 1.8), (1, 0.6, 1.8), 0.02);
+    let mut pole = Vec::new();
+    let mut z = 0.02;
+    while z < 1.3 {
+        if !(1.2..1.26).contains(&z) {
+            pole.push(Point3::new(1.2, 1.2, z));
+            pole.push(Point3::new(1.22, 1.2, z));
+        }
+        z += 0.02;
+    }
+    let with_pole: Vec<_> = floor.iter().chain(&pole).copied().collect();
+    let (e, moved) = extend_to_support(&b, b.center(), &with_pole, &[], true, &gp());
+    assert!(e.min[2].abs() < 1e-9 && moved.len() == 1, "{e:?} {moved:?}");
+    // Without the pole (a shade on a wall bracket, a pendant), the floor is too far.
+    let (e, moved) = extend_to_support(&b, b.center(), &floor, &[], true, &gp());
+    assert_eq!((e, moved.len()), (b, 0));
+    // A pole broken for 30 cm does not join.
+    let broken: Vec<_> = with_pole
+        .iter()
+        .filter(|q| !(0.5..0.8).contains(&q.z))
+        .copied()
+        .collect();
+    assert_eq!(
+        extend_to_support(&b, b.center(), &broken, &[], true, &gp()).0,
+        b
+    );
+    // Off: no column rule.
+    let mut off = gp();
+    off.support.max_gap_column = 0.0;
+    assert_eq!(
+        extend_to_support(&b, b.center(), &with_pole, &[], true, &off).0,
+        b
+    );
+}
+
+#[test]
+fn picture_extends_back_to_its_wall_not_down() {
+    // Picture front face at y = 2.97 (a zero-thickness slab), wall at y = 3.0 around it.
+    let b = Aabb::new([1.0, 2.97, 1.2], [1.6, 2.97, 1.7]);
+    let mut wall = plane(1, 3.0, (0, 0.8, 1.8), (2, 1.0, 1.9), 0.02);
+    wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
+    let (e, moved) = extend_to_support(&b, b.center(), &wall, &[], true, &gp());
+    assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?}");
+    assert_eq!(
+        e.min, b.min,
+        "the wall below the picture is no floor: {moved:?}"
+    );
+    assert_eq!(moved.len(), 1);
+}
+
+#[test]
+fn leg_slices_far_walls_and_tiny_patches_are_not_supports() {
+    let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
+    // Four legs: vertical lines of points at the corners, no floor.
+    let mut legs = Vec::new();
+    for (x, y) in [(1.02, 1.02), (1.48, 1.02), (1.02, 1.48), (1.48, 1.48)] {
+        let mut z = 0.0;
+        while z < 0.45 {
+            for (dx, dy) in [(0.0, 0.0), (0.02, 0.0), (0.0, 0.02), (0.02, 0.02)] {
+                legs.push(Point3::new(x + dx, y + dy, z));
+            }
+            z += 0.02;
+        }
+    }
+    let (e, moved) = extend_to_support(&b, b.center(), &legs, &[], true, &gp());
+    assert_eq!((e, moved.len()), (b, 0));
+    // A wall 0.9 m behind the box is beyond even the far gap.
+    let wall = plane(1, 2.4, (0, 0.9, 1.6), (2, 0.4, 1.0), 0.02);
+    assert_eq!(
+        extend_to_support(&b, b.center(), &wall, &[], true, &gp()).0,
+        b
+    );
+    // A floor patch of a few points is not enough.
+    let patch = plane(2, 0.0, (0, 1.1, 1.14), (1, 1.1, 1.14), 0.02);
+    assert_eq!(
+        extend_to_support(&b, b.center(), &patch, &[], true, &gp()).0,
+        b
+    );
+    // Disabled: nothing moves.
+    let floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
+    let mut off = gp();
+    off.support.enabled = false;
+    assert_eq!(
+        extend_to_support(&b, b.center(), &floor, &[], true, &off).0,
+        b
+    );
+}
+
+/// An 80x60 pinhole camera at `eye` looking at `target`, depth everywhere `depth_m`.
+fn view(eye: [f64; 3], target: [f64; 3], depth_m: f64) -> (FrameCamera, DepthMap) {
+    let color = Intrinsics {
+        fx: 100.0,
+        fy: 100.0,
+        cx: 39.5,
+        cy: 29.5,
+        width: 80,
+        height: 60,
+    };
+    let pose = look_at_pose(Point3::from(eye), Point3::from(target), Vector3::z());
+    let cam = FrameCamera {
+        color,
+        depth: None,
+        depth_size: (80, 60),
+        pose,
+        align: Matrix4::identity(),
+    };
+    (
+        cam,
+        DepthMap::new(80, 60, vec![(depth_m * 1000.0) as u16; 80 * 60]),
+    )
+}
+
+#[test]
+fn far_wall_is_joined_only_when_no_frame_saw_the_gap_empty() {
+    // A cabinet whose front (y = 1.0) is all that was seen; a wall at y = 1.5 around it.
+    let b = Aabb::new([1.0, 1.0, 0.1], [1.6, 1.02, 0.9]);
+    let mut wall = plane(1, 1.5, (0, 0.8, 1.8), (2, 0.0, 1.1), 0.02);
+    wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z < 0.9));
+    // From the front the depth stops at the cabinet face (2 m away): the gap is hidden.
+    let front = view([1.3, -1.0, 0.5], [1.3, 1.0, 0.5], 2.0);
+    // From the side, looking along +x through the gap, the depth reads 5 m.
+    let side = view([-1.0, 1.25, 0.5], [1.3, 1.25, 0.5], 5.0);
+    let hidden = [(&front.0, &front.1)];
+    let (e, moved) = extend_to_support(&b, b.center(), &wall, &hidden, true, &gp());
+    assert!((e.max[1] - 1.5).abs() < 1e-9, "{e:?} {moved:?}");
+    let mut slab = b;
+    slab.min[1] = 1.02;
+    slab.max[1] = 1.5;
+    assert_eq!(observed_free_fraction(&slab, &hidden, &gp()), 0.0);
+    let seen = [(&front.0, &front.1), (&side.0, &side.1)];
+    assert!(observed_free_fraction(&slab, &seen, &gp()) > 0.9);
+    assert_eq!(
+        extend_to_support(&b, b.center(), &wall, &seen, true, &gp()).0,
+        b
+    );
+    // With the far gap off, the front view alone moves nothing either.
+    let mut near_only = gp();
+    near_only.support.max_gap_far = 0.0;
+    assert_eq!(
+        extend_to_support(&b, b.center(), &wall, &hidden, true, &near_only).0,
+        b
+    );
+}
+
+#[test]
+fn a_near_side_gap_seen_empty_is_not_crossed() {
+    // A lamp 9 cm in front of the wall y = 0 (its back face at y = 0.09).
+    let b = Aabb::new([1.0, 0.09, 0.55], [1.3, 0.35, 0.95]);
+    let mut wall = plane(1, 0.0, (0, 0.8, 1.5), (2, 0.4, 1.2), 0.02);
+    wall.retain(|q| !(q.x > 1.0 && q.x < 1.3 && q.z > 0.55 && q.z < 0.95));
+    // Unobserved gap: the back face moves onto the wall.
+    let (e, _) = extend_to_support(&b, b.center(), &wall, &[], true, &gp());
+    assert!(e.min[1].abs() < 1e-9, "{e:?}");
+    // A frame looking along the wall through the gap reads the far end of the room.
+    let side = view([-1.0, 0.045, 0.75], [1.15, 0.045, 0.75], 6.0);
+    let (e, moved) = extend_to_support(&b, b.center(), &wall, &[(&side.0, &side.1)], true, &gp());
+    assert_eq!(e.min[1], 0.09, "{moved:?}");
+    // A gap within one layer is noise and is closed whatever the frames saw.
+    let touching = Aabb::new([1.0, 0.03, 0.55], [1.3, 0.35, 0.95]);
+    assert!(
+        extend_to_support(
+            &touching,
+            touching.center(),
+            &wall,
+            &[(&side.0, &side.1)],
+            true,
+            &gp()
+        )
+        .0
+        .min[1]
+            .abs()
+            < 1e-9
+    );
+}
+
+#[test]
+fn nearest_support_wins_and_a_support_inside_the_box_changes_nothing() {
+    // A lamp on a nightstand top (z = 0.6) above the floor (z = 0).
+    let b = Aabb::new([1.1, 1.1, 0.62], [1.3, 1.3, 1.1]);
+    let mut ctx = plane(2, 0.6, (0, 0.95, 1.45), (1, 0.95, 1.45), 0.02);
+    ctx.extend(plane(2, 0.0, (0, 0.9, 1.5), (1, 0.9, 1.5), 0.02));
+    let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], true, &gp());
+    assert!((e.min[2] - 0.6).abs() < 1e-9, "{e:?}");
+    // Box bottom 5 cm inside the nightstand (depth noise): pulled back up onto its top.
+    let b2 = Aabb::new([1.1, 1.1, 0.55], [1.3, 1.3, 1.1]);
+    let (e2, moved) = extend_to_support(&b2, b2.center(), &ctx, &[], true, &gp());
+    assert!((e2.min[2] - 0.6).abs() < 1e-9, "{e2:?}");
+    assert_eq!((moved.len(), moved[0].side), (1, "min"));
+}
+
+#[test]
+fn a_noisy_floor_is_found_at_its_middle_not_its_fringe() {
+    // Floor points spread +-3 cm around z = 0 (deterministic pseudo-noise).
+    let mut floor = plane(2, 0.0, (0, 0.8, 1.7), (1, 0.8, 1.7), 0.02);
+    for (i, q) in floor.iter_mut().enumerate() {
+        q.z = 0.03 * (((i * 7919) % 61) as f64 / 30.0 - 1.0);
+    }
+    let b = Aabb::new([1.0, 1.0, 0.45], [1.5, 1.5, 0.9]);
+    let (e, _) = extend_to_support(&b, b.center(), &floor, &[], true, &gp());
+    assert!(e.min[2].abs() < 0.005, "{e:?}");
+}
+
+#[test]
+fn noisy_points_behind_the_wall_are_cut_at_the_wall() {
+    // A 3 cm picture on the wall y = 3.0; noise spread its cloud from 2.93 to 3.05.
+    let b = Aabb::new([1.0, 2.93, 1.2], [1.6, 3.05, 1.7]);
+    let mut wall = plane(1, 3.0, (0, 0.8, 1.8), (2, 1.0, 1.9), 0.02);
+    wall.retain(|q| !(q.x > 1.0 && q.x < 1.6 && q.z > 1.2 && q.z < 1.7));
+    // The picture's own front surface, inside the footprint, must not pass as a support.
+    wall.extend(plane(1, 2.97, (0, 1.04, 1.56), (2, 1.24, 1.66), 0.02));
+    // Bulk: the picture's front at 2.97 (the noisy cloud's median, not the box centre).
+    let bulk = [1.3, 2.97, 1.45];
+    let (e, moved) = extend_to_support(&b, bulk, &wall, &[], true, &gp());
+    assert!((e.max[1] - 3.0).abs() < 1e-9, "{e:?} {moved:?}");
+    assert_eq!((e.min, moved.len()), (b.min, 1));
+    assert_eq!(
+        median_point(&[
+            Point3::new(0.0, 5.0, 1.0),
+            Point3::new(2.0, 1.0, 0.0),
+            Point3::new(1.0, 3.0, 9.0)
+        ]),
+        Some([1.0, 3.0, 1.0])
+    );
+    assert_eq!(median_point(&[]), None);
+}
+
+#[test]
+fn a_window_above_a_cabinet_does_not_move_down_onto_it() {
+    // Window 0.97..2.17 m high on the wall y = 6.1; a cabinet top at z = 0.54 in front of
+    // the wall below it, wider than the window.
+    let b = Aabb::new([0.7, 6.05, 0.97], [1.9, 6.1, 2.17]);
+    let top = plane(2, 0.54, (0, 0.5, 2.1), (1, 5.6, 6.1), 0.02);
+    let p = gp();
+    assert!(
+        p.support.hangs("window")
+            && p.support.hangs("Framed Pictures")
+            && p.support.hangs("white board")
+    );
+    assert!(!p.support.hangs("chair") && !p.support.hangs("window seat"));
+    assert!(
+        p.support.is_flat("wooden doors")
+            && p.support.is_flat("picture")
+            && !p.support.hangs("door")
+    );
+    assert!(
+        !p.support.is_flat("chair")
+            && !p.support.is_flat("lamp")
+            && !p.support.is_flat("door knob")
+    );
+    let (moved_box, _) = extend_to_support(&b, b.center(), &top, &[], true, &p);
+    assert!(
+        (moved_box.min[2] - 0.54).abs() < 0.02,
+        "a resting object would move: {moved_box:?}"
+    );
+    let (e, moved) = extend_to_support(&b, b.center(), &top, &[], !p.support.hangs("window"), &p);
+    assert_eq!((e, moved.len()), (b, 0));
+}
