@@ -3,8 +3,9 @@
 
 use super::*;
 use crate::geometry::camera::look_at_pose;
+use crate::geometry::camera::transform_point;
 use crate::geometry::Intrinsics;
-use nalgebra::{Matrix4, Vector3};
+use nalgebra::{Matrix4, Point3, Vector3};
 
 /// A box with a colour and an instance id (0 = room structure).
 struct Part {

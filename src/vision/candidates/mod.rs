@@ -1,0 +1,276 @@
+//! Class-agnostic object candidates from one posed RGB-D frame (ours, not the paper's).
+//!
+//! A detector only proposes boxes for the classes it was trained on; most indoor nouns
+//! (cabinet, door, window, shelf, lamp, pillow, curtain...) are outside COCO. These
+//! candidates come from the scan itself, so they exist for any object:
+//! 1. the frame is sampled on a grid of cells (`cells_across` over the colour width); each
+//!    cell gets a robust depth (median of the 3x3 depth pixels it reads), its point in the
+//!    output frame (+z up) and its colour;
+//! 2. with the room's layout (`geometry::layout`), a cell within `structure_margin` (+
+//!    `structure_per_m` per metre of depth) of the floor, the ceiling or a wall is room
+//!    structure, not an object. A cell without depth whose ray leaves the room beyond the
+//!    sensor's range is put on that wall;
+//! 3. **objects**: the remaining cells joined to their 4-neighbours across depth steps
+//!    smaller than `step_fixed + step_per_m * z + step_footprints * footprint` (a cell's
+//!    footprint at depth z is `cell_px * z / fx`, so a slanted face stays whole);
+//! 4. **parts**: the same with each neighbour also of the same colour (hue and brightness,
+//!    the depth segmenter's rule), so a lamp standing on its nightstand or a pillow lying on
+//!    a bed of another colour is a candidate of its own;
+//! 5. **groups**: object regions that touch in the image across a larger depth step
+//!    (`group_step` + `group_per_m` per metre): a lamp's shade and the pole behind it, a
+//!    chair's back and its seat seen over a table's edge. Offered beside their members;
+//! 6. **on walls**: wall cells joined by colour. The largest region of each wall is the
+//!    wall; the others (pictures, windows, doors, boards) are candidates.
+//!
+//! Regions smaller than `min_cells` or larger than `max_extent` along any axis (what is left
+//! of the room) are dropped; near-duplicates (box IoU above `dedupe_iou`) keep the larger.
+//! The result is at most `max_per_frame` boxes in colour pixels, largest first.
+
+mod grid;
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use super::depth_seg::same_hue;
+use crate::geometry::{DepthMap, FrameCamera, LayoutParams, RoomLayout};
+use grid::{
+    build_grid, colour_split, dominant_colour, opened_components, pairs, regions, to_candidate,
+    Cell, Sets,
+};
+
+/// Settings of [`frame_candidates`] (file section `[agent.candidates]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CandidateParams {
+    /// Compute candidates at indexing and offer them when the detector cannot help.
+    pub enabled: bool,
+    /// Grid cells across the colour image's width.
+    pub cells_across: u32,
+    /// Distance (m) from a side of the room within which a point is structure...
+    pub structure_margin: f64,
+    /// ...plus this much per metre of depth (sensor noise grows with distance).
+    pub structure_per_m: f64,
+    /// Depth step (m) that separates two neighbouring cells: fixed part...
+    pub step_fixed: f64,
+    /// ...plus this much per metre of depth...
+    pub step_per_m: f64,
+    /// ...plus this many cell footprints (a face seen at a slant).
+    pub step_footprints: f64,
+    /// Fewest cells a candidate may have.
+    pub min_cells: usize,
+    /// Largest extent (m) of a candidate along any axis.
+    pub max_extent: f64,
+    /// Colour tolerance of parts and wall regions (the depth segmenter's hue rule, tighter
+    /// than the segmenter's 60: brown against a grey wall is within 60).
+    pub colour_tol: f64,
+    /// A colour part must hold at least this share of its object's cells.
+    pub min_part: f64,
+    /// Depth step (m) across which touching object regions form a group...
+    pub group_step: f64,
+    /// ...plus this much per metre of depth.
+    pub group_per_m: f64,
+    /// Most candidates kept per frame (largest first).
+    pub max_per_frame: usize,
+    /// Box IoU above which the smaller of two candidates is dropped.
+    pub dedupe_iou: f64,
+    /// Offer the candidates beside the detector's boxes too (the VLM then always picks,
+    /// even among one detection): a closed-vocabulary detector at the edge of its classes
+    /// misses instances and boxes the wrong object. Candidates overlapping a detection by
+    /// more than `dedupe_iou` are left out.
+    pub beside_detections: bool,
+}
+
+impl Default for CandidateParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            cells_across: 160,
+            structure_margin: 0.04,
+            structure_per_m: 0.01,
+            step_fixed: 0.03,
+            step_per_m: 0.02,
+            step_footprints: 2.5,
+            min_cells: 20,
+            max_extent: 3.0,
+            colour_tol: 30.0,
+            min_part: 0.02,
+            group_step: 0.25,
+            group_per_m: 0.05,
+            max_per_frame: 24,
+            dedupe_iou: 0.85,
+            beside_detections: true,
+        }
+    }
+}
+
+/// How a candidate was found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CandidateKind {
+    /// A depth-connected region off the room's structure.
+    Object,
+    /// One colour of such a region.
+    Part,
+    /// Touching regions across a larger depth step.
+    Group,
+    /// A colour region on a wall.
+    OnWall,
+}
+
+impl CandidateKind {
+    /// The label candidates are cached under.
+    pub fn label(self) -> &'static str {
+        match self {
+            CandidateKind::Object => "object",
+            CandidateKind::Part => "object part",
+            CandidateKind::Group => "object group",
+            CandidateKind::OnWall => "on wall",
+        }
+    }
+}
+
+/// One class-agnostic candidate.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Candidate {
+    /// [x1, y1, x2, y2] in colour pixels.
+    pub bbox: [f32; 4],
+    pub kind: CandidateKind,
+    /// Grid cells it covers.
+    pub cells: usize,
+    /// Its points' box in the output frame (m).
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+/// Intersection over union of two boxes [x1, y1, x2, y2].
+pub fn box_iou(a: &[f32; 4], b: &[f32; 4]) -> f64 {
+    let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
+    let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let inter = f64::from(iw * ih);
+    let area = |r: &[f32; 4]| f64::from((r[2] - r[0]) * (r[3] - r[1]));
+    let union = area(a) + area(b) - inter;
+    if union <= 0.0 {
+        0.0
+    } else {
+        inter / union
+    }
+}
+
+/// The class-agnostic candidates of one frame, largest first (see the module docs).
+/// `layout` is the room's box (None: nothing counts as structure and only `max_extent`
+/// removes the room).
+pub fn frame_candidates(
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    color: &RgbImage,
+    layout: Option<&RoomLayout>,
+    lp: &LayoutParams,
+    p: &CandidateParams,
+) -> Vec<Candidate> {
+    if color.width() == 0 || color.height() == 0 || depth.width == 0 || depth.height == 0 {
+        return Vec::new();
+    }
+    let g = build_grid(cam, depth, color, layout, lp, p);
+    let n = g.w * g.h;
+    let fx = cam.color.fx.abs().max(1e-6);
+    let step =
+        |z: f64| p.step_fixed + p.step_per_m * z + p.step_footprints * f64::from(g.s) * z / fx;
+    let near = |a: usize, b: usize| (g.z[a] - g.z[b]).abs() < step(g.z[a].min(g.z[b]));
+
+    let grouped = |a: usize, b: usize| {
+        let z = g.z[a].min(g.z[b]);
+        (g.z[a] - g.z[b]).abs() < p.group_step + p.group_per_m * z
+    };
+    let (mut objects, mut groups) = (Sets::new(n), Sets::new(n));
+    for (a, b) in pairs(g.w, g.h) {
+        if (g.kind[a], g.kind[b]) != (Cell::Free, Cell::Free) {
+            continue;
+        }
+        if near(a, b) {
+            objects.join(a, b);
+            groups.join(a, b);
+        } else if grouped(a, b) {
+            groups.join(a, b);
+        }
+    }
+    let dims = color.dimensions();
+    let fits = |c: &Candidate| {
+        c.cells >= p.min_cells && (0..3).all(|k| c.max[k] - c.min[k] <= p.max_extent)
+    };
+    let mut out: Vec<Candidate> = Vec::new();
+    let free = |i: usize| g.kind[i] == Cell::Free;
+    let object_regions = regions(&mut objects, free, n);
+    for r in &object_regions {
+        let c = to_candidate(&g, r, CandidateKind::Object, dims);
+        if fits(&c) {
+            out.push(c);
+        }
+    }
+    let mut object_of = vec![usize::MAX; n];
+    for (k, r) in object_regions.iter().enumerate() {
+        for &i in r {
+            object_of[i] = k;
+        }
+    }
+    for whole in object_regions.iter().filter(|r| r.len() >= 2 * p.min_cells) {
+        let least = p.min_cells.max((p.min_part * whole.len() as f64) as usize);
+        for r in colour_split(&g, whole, p.colour_tol, least, 2) {
+            if r.len() < whole.len() * 9 / 10 {
+                let c = to_candidate(&g, &r, CandidateKind::Part, dims);
+                if fits(&c) {
+                    out.push(c);
+                }
+            }
+        }
+    }
+    for r in regions(&mut groups, free, n) {
+        let mut members: Vec<usize> = r.iter().map(|&i| object_of[i]).collect();
+        members.sort_unstable();
+        members.dedup();
+        if members.len() > 1 {
+            let c = to_candidate(&g, &r, CandidateKind::Group, dims);
+            if fits(&c) {
+                out.push(c);
+            }
+        }
+    }
+    for side in 0..4u8 {
+        let on: Vec<usize> = (0..n).filter(|&i| g.kind[i] == Cell::Wall(side)).collect();
+        if on.len() < 2 * p.min_cells {
+            continue;
+        }
+        // The wall's own colour is the one most of its cells have; what differs from it
+        // and hangs together is on the wall.
+        let wall = dominant_colour(&g, &on);
+        let off: Vec<usize> = on
+            .iter()
+            .copied()
+            .filter(|&i| !same_hue(&wall, &g.rgb[i], p.colour_tol))
+            .collect();
+        for r in opened_components(&g, &off) {
+            if r.len() >= p.min_cells && r.len() * 10 < on.len() * 6 {
+                let c = to_candidate(&g, &r, CandidateKind::OnWall, dims);
+                if fits(&c) {
+                    out.push(c);
+                }
+            }
+        }
+    }
+    out.sort_by_key(|c| std::cmp::Reverse(c.cells));
+    let mut kept: Vec<Candidate> = Vec::new();
+    for c in out {
+        if kept.len() >= p.max_per_frame {
+            break;
+        }
+        if kept
+            .iter()
+            .all(|k| box_iou(&k.bbox, &c.bbox) <= p.dedupe_iou)
+        {
+            kept.push(c);
+        }
+    }
+    kept
+}
+
+#[cfg(test)]
+mod tests;
