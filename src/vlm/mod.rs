@@ -10,6 +10,7 @@ pub mod json;
 pub mod message;
 pub mod prompts;
 pub mod server_info;
+pub mod wire;
 
 pub use budget::{CallBudget, Usage};
 pub use client::{ChatReply, VlmClient, VlmHealth};
