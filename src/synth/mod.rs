@@ -233,11 +233,75 @@ pub fn generate(params: &SynthParams, out_dir: &Path) -> Result<SynthScene> {
 pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<SynthScene> {
     params.validate()?;
     let world = room::build(params.seed);
-    let sid = scene_id(params.seed);
+    let poses = path::camera_path(&world, params.frames, params.seed);
+    let labels: Vec<(u32, &str)> = world
+        .objects
+        .iter()
+        .map(|o| (o.id, o.label.as_str()))
+        .collect();
+    let head = SceneHead {
+        scene_id: scene_id(params.seed),
+        room_size: world.size,
+        align: world.align,
+        align_inv: world.align_inv,
+        labels: &labels,
+        objects: world.output_objects(),
+    };
+    let renderer = render::Renderer::new(&world);
+    write_scene(
+        params,
+        out_dir,
+        tar,
+        head,
+        &poses,
+        |i, pose, color_k, depth_k| {
+            let color = renderer.render_color(pose, color_k, params, i);
+            (
+                color.rgb,
+                color.instance,
+                renderer.render_depth(pose, depth_k),
+            )
+        },
+    )
+}
+
+/// What a scene family hands to [`write_scene`] about its world.
+pub(crate) struct SceneHead<'a> {
+    pub scene_id: String,
+    pub room_size: (f64, f64, f64),
+    /// Aligned frame from the world frame, and back.
+    pub align: Matrix4<f64>,
+    pub align_inv: Matrix4<f64>,
+    /// Instance id and label of every object.
+    pub labels: &'a [(u32, &'a str)],
+    pub objects: Vec<SynthObject>,
+}
+
+/// Render and write a scene of any family: the frames of the camera path `poses` (aligned
+/// frame) in parallel through `render(i, pose, colour intrinsics, depth intrinsics)` ->
+/// (RGB bytes, instance ids, depth), with the sensor noise of `params`, then the static
+/// files, the queries and (when `tar`) the archive. Output bytes depend only on `params`.
+pub(crate) fn write_scene<R>(
+    params: &SynthParams,
+    out_dir: &Path,
+    tar: bool,
+    head: SceneHead<'_>,
+    poses: &[Matrix4<f64>],
+    render: R,
+) -> Result<SynthScene>
+where
+    R: Fn(
+            usize,
+            &Matrix4<f64>,
+            &Intrinsics,
+            &Intrinsics,
+        ) -> (Vec<u8>, Vec<u16>, render::DepthFrame)
+        + Sync,
+{
+    let sid = head.scene_id;
     let dir = out_dir.join(&sid);
     let color_k = color_intrinsics(params.color_size.0, params.color_size.1);
     let depth_k = color_k.scaled_to(params.depth_size.0, params.depth_size.1);
-    let poses = path::camera_path(&world, params.frames, params.seed);
     let invalid = noise::invalid_pose_frames(params);
     let frames: Vec<SynthFrame> = poses
         .iter()
@@ -251,40 +315,32 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
 
     let writer = output::SceneWriter::create(&dir, params.layout)
         .with_context(|| format!("synth: cannot create scene directory {}", dir.display()))?;
-    let labels: Vec<(u32, &str)> = world
-        .objects
-        .iter()
-        .map(|o| (o.id, o.label.as_str()))
-        .collect();
-    writer.write_static(&world.align, &labels, &color_k, &depth_k)?;
-    let scene_renderer = render::Renderer::new(&world);
+    writer.write_static(&head.align, head.labels, &color_k, &depth_k)?;
     frames
         .par_iter()
         .enumerate()
         .try_for_each(|(i, f)| -> Result<()> {
-            let color = scene_renderer.render_color(&f.pose_aligned, &color_k, params, i);
-            let mut depth = scene_renderer.render_depth(&f.pose_aligned, &depth_k);
-            let mut rgb = color.rgb;
+            let (mut rgb, instance, mut depth) = render(i, &f.pose_aligned, &color_k, &depth_k);
             let mut pose_out = f.pose_aligned;
             if params.noise == Noise::Realistic {
                 noise::depth_noise(&mut depth, params.seed, i);
                 noise::color_noise(&mut rgb, params.seed, i);
                 pose_out = noise::jitter_pose(&pose_out, params.seed, i);
             }
-            let pose_world = world.align_inv * pose_out;
+            let pose_world = head.align_inv * pose_out;
             writer.write_frame(
                 &f.name,
                 &rgb,
                 &color_k,
                 &depth.mm,
                 &depth_k,
-                &color.instance,
+                &instance,
                 f.pose_valid.then_some(&pose_world),
                 params.jpeg_quality,
             )
         })?;
 
-    let objects = world.output_objects();
+    let objects = head.objects;
     let queries = queries::make_queries(&sid, &objects);
     let tar_path = if tar {
         Some(output::write_tar(&dir, out_dir, &sid)?)
@@ -295,11 +351,11 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
         scene_id: sid,
         dir,
         tar: tar_path,
-        room_size: world.size,
+        room_size: head.room_size,
         objects,
         queries,
         frames,
-        axis_align: world.align,
+        axis_align: head.align,
         color_intrinsics: color_k,
         depth_intrinsics: depth_k,
         params: params.clone(),

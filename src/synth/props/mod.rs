@@ -17,9 +17,8 @@ mod place;
 mod prim;
 mod render;
 
-use super::{noise, output, queries, Noise, SynthFrame, SynthParams, SynthScene};
-use anyhow::{Context, Result};
-use rayon::prelude::*;
+use super::{write_scene, SceneHead, SynthParams, SynthScene};
+use anyhow::Result;
 use std::path::Path;
 
 /// Scene id of a props seed: `scene_props_0007`.
@@ -32,75 +31,34 @@ pub fn scene_id(seed: u64) -> String {
 pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<SynthScene> {
     params.validate()?;
     let world = layout::build(params.seed);
-    let sid = scene_id(params.seed);
-    let dir = out_dir.join(&sid);
-    let color_k = super::color_intrinsics(params.color_size.0, params.color_size.1);
-    let depth_k = color_k.scaled_to(params.depth_size.0, params.depth_size.1);
     let poses = path::camera_path(&world, params.frames, params.seed);
-    let invalid = noise::invalid_pose_frames(params);
-    let frames: Vec<SynthFrame> = poses
-        .iter()
-        .enumerate()
-        .map(|(i, p)| SynthFrame {
-            name: (i as u64 * params.frame_step as u64).to_string(),
-            pose_aligned: *p,
-            pose_valid: !invalid.contains(&i),
-        })
-        .collect();
-
-    let writer = output::SceneWriter::create(&dir, params.layout)
-        .with_context(|| format!("synth: cannot create scene directory {}", dir.display()))?;
     let labels: Vec<(u32, &str)> = world
         .objects
         .iter()
         .map(|o| (o.id, o.label.as_str()))
         .collect();
-    writer.write_static(&world.align, &labels, &color_k, &depth_k)?;
-    let renderer = render::Renderer::new(&world, params.seed);
-    frames
-        .par_iter()
-        .enumerate()
-        .try_for_each(|(i, f)| -> Result<()> {
-            let color = renderer.render_color(&f.pose_aligned, &color_k);
-            let mut depth = renderer.render_depth(&f.pose_aligned, &depth_k);
-            let mut rgb = color.rgb;
-            let mut pose_out = f.pose_aligned;
-            if params.noise == Noise::Realistic {
-                noise::depth_noise(&mut depth, params.seed, i);
-                noise::color_noise(&mut rgb, params.seed, i);
-                pose_out = noise::jitter_pose(&pose_out, params.seed, i);
-            }
-            let pose_world = world.align_inv * pose_out;
-            writer.write_frame(
-                &f.name,
-                &rgb,
-                &color_k,
-                &depth.mm,
-                &depth_k,
-                &color.instance,
-                f.pose_valid.then_some(&pose_world),
-                params.jpeg_quality,
-            )
-        })?;
-
-    let objects = world.output_objects();
-    let queries = queries::make_queries(&sid, &objects);
-    let tar_path = if tar {
-        Some(output::write_tar(&dir, out_dir, &sid)?)
-    } else {
-        None
-    };
-    Ok(SynthScene {
-        scene_id: sid,
-        dir,
-        tar: tar_path,
+    let head = SceneHead {
+        scene_id: scene_id(params.seed),
         room_size: world.size,
-        objects,
-        queries,
-        frames,
-        axis_align: world.align,
-        color_intrinsics: color_k,
-        depth_intrinsics: depth_k,
-        params: params.clone(),
-    })
+        align: world.align,
+        align_inv: world.align_inv,
+        labels: &labels,
+        objects: world.output_objects(),
+    };
+    let renderer = render::Renderer::new(&world, params.seed);
+    write_scene(
+        params,
+        out_dir,
+        tar,
+        head,
+        &poses,
+        |_, pose, color_k, depth_k| {
+            let color = renderer.render_color(pose, color_k);
+            (
+                color.rgb,
+                color.instance,
+                renderer.render_depth(pose, depth_k),
+            )
+        },
+    )
 }
