@@ -47,6 +47,26 @@ pub struct Config {
     /// Most pixels one uploaded image (colour, depth, instance mask) may declare; checked
     /// from the image's header before decoding (413 `image_too_large` above).
     pub max_image_pixels: u64,
+    /// Most pixels a whole scene may hold: frames x (colour + depth pixels), checked from
+    /// the first frame's headers at upload and at each append (413 `scene_too_large`).
+    pub max_scene_pixels: u64,
+    /// Upload bodies (scenes and frame appends) received at the same time; one more is
+    /// answered 503 `too_many_uploads` with Retry-After.
+    pub max_concurrent_uploads: usize,
+    /// Scenes indexed at the same time; more wait `indexing` for a slot.
+    pub max_concurrent_indexing: usize,
+    /// Scenes waiting for an indexing slot before uploads, appends and re-indexing are
+    /// answered 503 `indexing_busy` with Retry-After (with a detector).
+    pub max_queued_indexing: usize,
+    /// Longest pause between two pieces of an upload body, s (408 `upload_timeout`).
+    pub upload_idle_timeout_secs: u64,
+    /// Longest time an upload body may take in all, s (408 `upload_timeout`).
+    pub upload_timeout_secs: u64,
+    /// Free space the data dir's file system must keep, MB: an upload that would leave
+    /// less is refused (507 `insufficient_storage`).
+    pub min_free_disk_mb: u64,
+    /// Days finished jobs (and their artifacts) are kept; 0 keeps them for ever.
+    pub job_retention_days: f64,
     /// Concurrent grounding jobs.
     pub workers: usize,
     /// Bound of the decoded-scene cache shared by the jobs (depth maps and cameras), MB.
@@ -100,6 +120,14 @@ impl Default for Config {
             max_unpacked_bytes: 8 << 30,
             max_archive_files: 200_000,
             max_image_pixels: crate::scene::import::DEFAULT_MAX_IMAGE_PIXELS,
+            max_scene_pixels: crate::scene::import::DEFAULT_MAX_SCENE_PIXELS,
+            max_concurrent_uploads: 8,
+            max_concurrent_indexing: 2,
+            max_queued_indexing: 16,
+            upload_idle_timeout_secs: 60,
+            upload_timeout_secs: 3600,
+            min_free_disk_mb: 1024,
+            job_retention_days: 7.0,
             workers: 2,
             scene_cache_mb: crate::jobs::scene_cache::DEFAULT_SCENE_CACHE_MB,
             max_memory_mb: 0,

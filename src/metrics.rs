@@ -32,6 +32,8 @@ pub struct Metrics {
     pub job_duration: Family<OutcomeLabels, Histogram>,
     pub jobs_by_state: Family<StateLabels, Gauge>,
     pub vlm_calls: Counter,
+    /// Workers whose loop is running (set at scrape time).
+    pub workers_alive: Gauge,
 }
 
 impl Default for Metrics {
@@ -45,6 +47,12 @@ impl Default for Metrics {
         });
         let jobs_by_state = Family::<StateLabels, Gauge>::default();
         let vlm_calls = Counter::default();
+        let workers_alive = Gauge::default();
+        registry.register(
+            "workers_alive",
+            "Job workers whose loop is running",
+            workers_alive.clone(),
+        );
         registry.register(
             "http_request_duration_seconds",
             "HTTP request latency by route and status",
@@ -63,6 +71,7 @@ impl Default for Metrics {
             job_duration,
             jobs_by_state,
             vlm_calls,
+            workers_alive,
         }
     }
 }

@@ -56,6 +56,12 @@ impl Application {
                 scene_cache_bytes: cfg.scene_cache_mb << 20,
                 max_memory_mb: cfg.max_memory_mb,
                 job_memory_mb: cfg.job_memory_mb,
+                max_concurrent_indexing: cfg.max_concurrent_indexing,
+                job_retention: (cfg.job_retention_days > 0.0).then(|| {
+                    std::time::Duration::from_secs_f64(
+                        (cfg.job_retention_days * 86_400.0).min(1e12),
+                    )
+                }),
                 ..WorkerConfig::new(cfg.workers, cfg.data_dir.clone())
             },
         );
@@ -92,6 +98,9 @@ impl Application {
             store.clone(),
             jobs.clone(),
         );
+        let uploads = Arc::new(tokio::sync::Semaphore::new(
+            cfg.max_concurrent_uploads.max(1),
+        ));
         let state = AppState {
             cfg: Arc::new(cfg),
             store,
@@ -101,6 +110,7 @@ impl Application {
             on_scene_stored,
             detector_needs_instances: needs_instances,
             auth: Arc::new(api::auth::Auth::new(anonymous)),
+            uploads,
         };
         crate::jobs::indexing::resume(
             &state.store,
@@ -110,6 +120,11 @@ impl Application {
         .await?;
         state.jobs.start();
         Ok(Self { listener, state })
+    }
+
+    /// The job system (tests reach its hooks through it).
+    pub fn jobs(&self) -> JobSystem {
+        self.state.jobs.clone()
     }
 
     pub fn local_addr(&self) -> anyhow::Result<SocketAddr> {

@@ -146,7 +146,9 @@ impl From<StoreError> for ApiError {
 impl From<SceneError> for ApiError {
     fn from(e: SceneError) -> Self {
         let status = match &e {
-            SceneError::TooLarge(_) | SceneError::ImageTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            SceneError::TooLarge(_)
+            | SceneError::ImageTooLarge(_)
+            | SceneError::SceneTooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             SceneError::NotArchive(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             SceneError::Io(_) => StatusCode::INTERNAL_SERVER_ERROR,
             SceneError::BadImage(_)

@@ -7,7 +7,8 @@ use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode};
 
 use super::capture::CaptureParams;
-use super::scenes::{limits, spool};
+use super::scenes::limits;
+use super::spool::{check_indexing_room, spool};
 use super::{ApiError, AppState};
 use crate::jobs::ingest::{prepare_scene, Cleanup};
 use crate::scene::import::ImportedScene;
@@ -26,10 +27,13 @@ use crate::store::SceneRecord;
         (status = 200, body = SceneRecord),
         (status = 400, body = super::Problem, content_type = "application/problem+json"),
         (status = 404, body = super::Problem, content_type = "application/problem+json"),
+        (status = 408, body = super::Problem, content_type = "application/problem+json", description = "upload_timeout: the body stalled (upload_idle_timeout_secs) or took too long (upload_timeout_secs)"),
         (status = 409, body = super::Problem, content_type = "application/problem+json"),
-        (status = 413, body = super::Problem, content_type = "application/problem+json"),
+        (status = 413, body = super::Problem, content_type = "application/problem+json", description = "body_too_large, archive_too_large, image_too_large or scene_too_large (max_scene_pixels, the scene's frames and the new ones)"),
         (status = 415, body = super::Problem, content_type = "application/problem+json"),
-        (status = 422, body = super::Problem, content_type = "application/problem+json")))]
+        (status = 422, body = super::Problem, content_type = "application/problem+json"),
+        (status = 503, body = super::Problem, content_type = "application/problem+json", description = "too_many_uploads (max_concurrent_uploads) or indexing_busy (max_queued_indexing)", headers(("Retry-After" = u64, description = "Seconds"))),
+        (status = 507, body = super::Problem, content_type = "application/problem+json", description = "insufficient_storage: the upload would cut into min_free_disk_mb")))]
 pub async fn append(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -53,42 +57,40 @@ pub async fn append(
     let names = state.store.frame_names(&id).await?;
     let last: Option<u64> = names.iter().filter_map(|n| n.parse().ok()).max();
     capture.opts.first_name = last.map_or(0, |l| l + 1);
+    check_indexing_room(&state)?;
     let part = uuid::Uuid::now_v7().to_string();
-    let (upload, _guard, content_type) = spool(&state, &headers, body, &part).await?;
+    let upload = spool(&state, &headers, body, &part, &|_| None).await?;
     let tmp = state.cfg.data_dir.join("tmp");
     let (work, staging) = (tmp.join(&part), tmp.join(format!("{part}.frames")));
-    let _staging_guard = Cleanup(Some(staging.clone()));
+    let staging_guard = Cleanup(Some(staging.clone()));
     let lim = limits(&state);
     let st = staging.clone();
+    let (up, ct) = (upload.path.clone(), upload.content_type.clone());
     let frames = tokio::task::spawn_blocking(move || {
-        prepare_scene(&upload, content_type.as_deref(), &work, &st, lim, &capture)
+        prepare_scene(&up, ct.as_deref(), &work, &st, lim, &capture)
     })
     .await
     .map_err(|e| ApiError::internal(format!("import task failed: {e}")))??;
+    drop(upload);
     check_fits(&state, &id, &frames, last).await?;
+    // Its own task: a client going away never stops the files and rows half-way.
+    tokio::spawn(store_frames(state, id, frames, staging_guard))
+        .await
+        .map_err(|e| ApiError::internal(format!("append task failed: {e}")))?
+}
 
-    // Move the new colour images (and masks) in under their frame names.
+/// Move the new colour images (and masks) in under their frame names, then commit their
+/// rows. Files come first: a crash in between leaves files no row names, which the
+/// start-up sweep removes (`jobs::sweep`); a failure here removes them at once.
+async fn store_frames(
+    state: AppState,
+    id: String,
+    frames: ImportedScene,
+    _staging: Cleanup,
+) -> Result<axum::Json<SceneRecord>, ApiError> {
     let scene_dir = state.jobs.scene_dir(&id);
     let mut moved = Vec::new();
-    let mut stored = frames;
-    let res: Result<(), ApiError> = (|| {
-        for f in &mut stored.frames {
-            let dest = scene_dir.join("color").join(format!("{}.jpg", f.name));
-            std::fs::rename(&f.color_path, &dest)
-                .map_err(|e| ApiError::internal(format!("cannot store frame {}: {e}", f.name)))?;
-            moved.push(dest);
-            if let Some(inst) = &f.instance_path {
-                let dest = scene_dir.join("instance").join(format!("{}.png", f.name));
-                std::fs::create_dir_all(scene_dir.join("instance"))
-                    .and_then(|_| std::fs::rename(inst, &dest))
-                    .map_err(|e| {
-                        ApiError::internal(format!("cannot store mask {}: {e}", f.name))
-                    })?;
-                moved.push(dest);
-            }
-        }
-        Ok(())
-    })();
+    let res = move_in(&scene_dir, &frames, &mut moved);
     let undo = |moved: &[std::path::PathBuf]| {
         for p in moved {
             let _ = std::fs::remove_file(p);
@@ -98,8 +100,9 @@ pub async fn append(
         undo(&moved);
         return Err(e);
     }
+    super::scenes::test_pause(&state).await;
     let detector = (state.cfg.detector != "none").then_some(state.cfg.detector.as_str());
-    let first = match state.store.append_frames(&id, &stored, detector).await {
+    let first = match state.store.append_frames(&id, &frames, detector).await {
         Ok(f) => f,
         Err(e) => {
             undo(&moved);
@@ -118,6 +121,28 @@ pub async fn append(
         state.jobs.wake();
     }
     Ok(axum::Json(now))
+}
+
+/// Rename the staged frames' files into the scene folder, recording each one moved.
+fn move_in(
+    scene_dir: &std::path::Path,
+    frames: &ImportedScene,
+    moved: &mut Vec<std::path::PathBuf>,
+) -> Result<(), ApiError> {
+    for f in &frames.frames {
+        let dest = scene_dir.join("color").join(format!("{}.jpg", f.name));
+        std::fs::rename(&f.color_path, &dest)
+            .map_err(|e| ApiError::internal(format!("cannot store frame {}: {e}", f.name)))?;
+        moved.push(dest);
+        if let Some(inst) = &f.instance_path {
+            let dest = scene_dir.join("instance").join(format!("{}.png", f.name));
+            std::fs::create_dir_all(scene_dir.join("instance"))
+                .and_then(|_| std::fs::rename(inst, &dest))
+                .map_err(|e| ApiError::internal(format!("cannot store mask {}: {e}", f.name)))?;
+            moved.push(dest);
+        }
+    }
+    Ok(())
 }
 
 fn unfit(detail: String) -> ApiError {
@@ -141,6 +166,15 @@ async fn check_fits(
         .await?
         .ok_or_else(|| ApiError::not_found("scene", id))?;
     let (color, depth, depth_size) = scene;
+    let frames = state.store.frame_names(id).await?.len() + new.frames.len();
+    if let Some(e) = crate::scene::import::scene_pixels_error(
+        frames as u64,
+        (new.color.width, new.color.height),
+        new.depth_size,
+        state.cfg.max_scene_pixels,
+    ) {
+        return Err(e.into());
+    }
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * a.abs().max(1.0);
     let same = |a: &crate::geometry::Intrinsics, b: &crate::geometry::Intrinsics| {
         a.width == b.width

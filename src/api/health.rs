@@ -22,7 +22,7 @@ pub async fn healthz() -> axum::Json<Health> {
     })
 }
 
-/// The database answers and every configured model is loaded.
+/// The database answers, every configured model is loaded and a job worker is alive.
 #[utoipa::path(get, path = "/readyz", tag = "health", responses((status = 200, body = Health), (status = 503, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>, ApiError> {
     if !state.store.ping().await {
@@ -39,6 +39,9 @@ pub async fn readyz(State(state): State<AppState>) -> Result<axum::Json<Health>,
     let vlm = state.readiness.read().ok().and_then(|r| r.vlm.clone());
     if let Some(p) = vlm.and_then(|h| h.problem()) {
         problems.push(p);
+    }
+    if state.jobs.live_workers() == 0 {
+        problems.push("no job worker is alive: queued jobs will not run".into());
     }
     if !problems.is_empty() {
         // The log at start-up holds the full reasons; the caller sees file names only.
@@ -68,6 +71,10 @@ pub async fn metrics(State(state): State<AppState>) -> Result<impl IntoResponse,
             })
             .set(n);
     }
+    state
+        .metrics
+        .workers_alive
+        .set(state.jobs.live_workers() as i64);
     Ok((
         [(
             header::CONTENT_TYPE,

@@ -13,6 +13,7 @@ pub mod jobs;
 pub mod openapi;
 pub mod rejection;
 pub mod scenes;
+pub mod spool;
 pub mod viewer;
 
 use axum::extract::{MatchedPath, Request, State};
@@ -53,6 +54,8 @@ pub struct AppState {
     pub detector_needs_instances: bool,
     /// API keys and anonymous access.
     pub auth: Arc<auth::Auth>,
+    /// Slots of the upload bodies received at the same time (`max_concurrent_uploads`).
+    pub uploads: Arc<tokio::sync::Semaphore>,
 }
 
 /// All routes.

@@ -5,13 +5,11 @@ use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Extension;
-use futures::StreamExt;
 use serde::Serialize;
-use sha2::{Digest, Sha256};
-use tokio::io::AsyncWriteExt;
 
 use super::auth::Caller;
 use super::capture::CaptureParams;
+use super::spool::{check_indexing_room, spool, Spooled};
 use super::{conditional, idempotency, ApiError, AppState};
 use crate::jobs::ingest::{prepare_scene, Cleanup};
 use crate::scene::archive::Limits;
@@ -31,11 +29,14 @@ pub struct SceneList {
         (status = 201, body = SceneRecord, headers(("Location" = String, description = "URL of the new scene"))),
         (status = 400, body = super::Problem, content_type = "application/problem+json"),
         (status = 401, body = super::Problem, content_type = "application/problem+json"),
+        (status = 408, body = super::Problem, content_type = "application/problem+json", description = "upload_timeout: the body stalled (upload_idle_timeout_secs) or took too long (upload_timeout_secs)"),
         (status = 409, body = super::Problem, content_type = "application/problem+json", description = "idempotency_key_in_use"),
-        (status = 413, body = super::Problem, content_type = "application/problem+json"),
+        (status = 413, body = super::Problem, content_type = "application/problem+json", description = "body_too_large, archive_too_large, image_too_large or scene_too_large (max_scene_pixels)"),
         (status = 415, body = super::Problem, content_type = "application/problem+json"),
         (status = 422, body = super::Problem, content_type = "application/problem+json", description = "The scene is invalid, or idempotency_key_reused"),
-        (status = 429, body = super::Problem, content_type = "application/problem+json", headers(("Retry-After" = u64, description = "Seconds")))),
+        (status = 429, body = super::Problem, content_type = "application/problem+json", headers(("Retry-After" = u64, description = "Seconds"))),
+        (status = 503, body = super::Problem, content_type = "application/problem+json", description = "too_many_uploads (max_concurrent_uploads) or indexing_busy (max_queued_indexing)", headers(("Retry-After" = u64, description = "Seconds"))),
+        (status = 507, body = super::Problem, content_type = "application/problem+json", description = "insufficient_storage: the upload would cut into min_free_disk_mb")),
     params(("Idempotency-Key" = Option<String>, Header, description = "Makes retries safe: the same key and body within 24 h replay the first answer")),
     security((), ("bearer" = [])))]
 pub async fn upload(
@@ -47,7 +48,6 @@ pub async fn upload(
 ) -> Result<Response, ApiError> {
     let capture = params.to_capture()?;
     let idem_key = idempotency::key_of(&headers)?;
-    let limit = state.cfg.max_upload_bytes;
     let used = match (caller.key_id, caller.max_scene_bytes) {
         (Some(k), Some(_)) => state.store.scene_bytes_of(k).await?,
         _ => 0,
@@ -64,68 +64,10 @@ pub async fn upload(
                 )
             })
     };
-    let too_large = || {
-        ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "body_too_large",
-            format!("the upload exceeds the limit of {limit} bytes"),
-        )
-    };
-    if let Some(len) = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok())
-    {
-        if len > limit {
-            return Err(too_large());
-        }
-        if let Some(e) = over_quota(len) {
-            return Err(e);
-        }
-    }
-    let content_type = headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .map(str::to_string);
+    check_indexing_room(&state)?;
     let id = uuid::Uuid::now_v7().to_string();
-    let tmp = state.cfg.data_dir.join("tmp");
-    tokio::fs::create_dir_all(&tmp)
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot create temp dir: {e}")))?;
-    let upload_path = tmp.join(format!("{id}.upload"));
-    let upload_guard = Cleanup(Some(upload_path.clone()));
-
-    // Spool the body to disk, counting bytes.
-    let mut file = tokio::fs::File::create(&upload_path)
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    let mut stream = body.into_data_stream();
-    let mut total: u64 = 0;
-    let mut hasher = Sha256::new();
-    while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| {
-            ApiError::bad_request(
-                "body_read_failed",
-                format!("the upload could not be read to the end: {e}"),
-            )
-        })?;
-        total += chunk.len() as u64;
-        if total > limit {
-            return Err(too_large());
-        }
-        if let Some(e) = over_quota(total) {
-            return Err(e);
-        }
-        hasher.update(&chunk);
-        file.write_all(&chunk)
-            .await
-            .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    }
-    file.flush()
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    drop(file);
-    let hash = hex::encode(hasher.finalize());
+    let upload = spool(&state, &headers, body, &id, &over_quota).await?;
+    let hash = upload.hash.clone();
     let st = state.clone();
     let owner = caller.key_id;
     // Without an Idempotency-Key nobody could learn the outcome once the client is gone:
@@ -140,26 +82,12 @@ pub async fn upload(
         &hash,
         async move {
             // Its own task: a client going away never stops an import half-way.
-            let upload = Spooled {
-                path: upload_path,
-                _guard: upload_guard,
-                content_type,
-                bytes: total,
-            };
             tokio::spawn(import(st, owner, id, upload, capture, client_gone))
                 .await
                 .map_err(|e| ApiError::internal(format!("import task failed: {e}")))?
         },
     )
     .await
-}
-
-/// An upload spooled under `<data>/tmp` (removed when this is dropped).
-struct Spooled {
-    path: std::path::PathBuf,
-    _guard: Cleanup,
-    content_type: Option<String>,
-    bytes: u64,
 }
 
 /// Unpack, validate and store a spooled upload. The scene's row is written first, hidden
@@ -358,7 +286,8 @@ pub async fn delete(
 /// scene is `indexing` until done and jobs on it wait.
 #[utoipa::path(post, path = "/v1/scenes/{id}/index", tag = "scenes", params(("id" = String, Path)),
     responses((status = 202, body = SceneRecord), (status = 404, body = super::Problem, content_type = "application/problem+json"),
-              (status = 409, body = super::Problem, content_type = "application/problem+json")))]
+              (status = 409, body = super::Problem, content_type = "application/problem+json"),
+              (status = 503, body = super::Problem, content_type = "application/problem+json", description = "indexing_busy (max_queued_indexing)", headers(("Retry-After" = u64, description = "Seconds")))))]
 pub async fn reindex(
     State(state): State<AppState>,
     Extension(caller): Extension<Caller>,
@@ -379,6 +308,7 @@ pub async fn reindex(
             "the service runs without a detector (detector = \"none\")",
         ));
     }
+    check_indexing_room(&state)?;
     let usable = scene.frames as usize - scene.unusable_frames.len();
     state
         .store
@@ -393,75 +323,12 @@ pub async fn reindex(
     Ok((StatusCode::ACCEPTED, axum::Json(record)))
 }
 
-/// Spool a request body to `<data>/tmp/<id>.upload`, enforcing the upload limit. The
-/// guard removes the file when dropped.
-pub(super) async fn spool(
-    state: &AppState,
-    headers: &HeaderMap,
-    body: Body,
-    id: &str,
-) -> Result<(std::path::PathBuf, Cleanup, Option<String>), ApiError> {
-    let limit = state.cfg.max_upload_bytes;
-    let too_large = || {
-        ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "body_too_large",
-            format!("the upload exceeds the limit of {limit} bytes"),
-        )
-    };
-    if let Some(len) = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok())
-    {
-        if len > limit {
-            return Err(too_large());
-        }
-    }
-    let content_type = headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .map(str::to_string);
-    let tmp = state.cfg.data_dir.join("tmp");
-    tokio::fs::create_dir_all(&tmp)
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot create temp dir: {e}")))?;
-    let upload_path = tmp.join(format!("{id}.upload"));
-    let _upload_guard = Cleanup(Some(upload_path.clone()));
-
-    // Spool the body to disk, counting bytes.
-    let mut file = tokio::fs::File::create(&upload_path)
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    let mut stream = body.into_data_stream();
-    let mut total: u64 = 0;
-    while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| {
-            ApiError::bad_request(
-                "body_read_failed",
-                format!("the upload could not be read to the end: {e}"),
-            )
-        })?;
-        total += chunk.len() as u64;
-        if total > limit {
-            return Err(too_large());
-        }
-        file.write_all(&chunk)
-            .await
-            .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    }
-    file.flush()
-        .await
-        .map_err(|e| ApiError::internal(format!("cannot spool upload: {e}")))?;
-    drop(file);
-    Ok((upload_path, _upload_guard, content_type))
-}
-
 /// The unpacking limits of the configuration.
 pub(super) fn limits(state: &AppState) -> Limits {
     Limits {
         max_bytes: state.cfg.max_unpacked_bytes,
         max_files: state.cfg.max_archive_files,
         max_image_pixels: state.cfg.max_image_pixels,
+        max_scene_pixels: state.cfg.max_scene_pixels,
     }
 }

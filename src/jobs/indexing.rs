@@ -112,6 +112,8 @@ pub fn hook(
             candidates.clone(),
         );
         tokio::spawn(async move {
+            // At most `max_concurrent_indexing` scenes at once; the others wait here.
+            let _slot = jobs.indexing_slot().await;
             if let Err(e) = store.begin_index_attempt(&scene_id).await {
                 tracing::error!(scene = %scene_id, "cannot count the indexing attempt: {e}");
             }

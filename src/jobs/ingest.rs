@@ -129,6 +129,7 @@ pub fn prepare_scene(
         }
     };
     let files = format::scan(&root)?;
+    import::check_scene_pixels(&files, limits.max_image_pixels, limits.max_scene_pixels)?;
     let mut scene = import::import(
         &files,
         work_dir.join("converted").as_path(),

@@ -4,9 +4,11 @@
 pub mod exports;
 pub mod indexing;
 pub mod ingest;
+pub mod retention;
 pub mod scene_cache;
 pub mod sweep;
 pub mod test_grounder;
+pub mod watchdog;
 pub mod webhooks;
 pub mod worker;
 
@@ -155,6 +157,12 @@ impl RunningJobs {
         if let Ok(mut g) = self.inner.lock() {
             g.remove(id);
         }
+    }
+    pub fn contains(&self, id: &str) -> bool {
+        self.inner
+            .lock()
+            .map(|g| g.contains_key(id))
+            .unwrap_or(true)
     }
     pub fn cancel(&self, id: &str) -> bool {
         self.inner

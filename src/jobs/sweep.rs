@@ -18,6 +18,9 @@ pub struct Swept {
     pub orphan_folders: usize,
     /// Half-written files inside kept scene folders.
     pub partial_files: usize,
+    /// Frame files of kept scenes that no frame row names (an append or a frame removal
+    /// interrupted between its files and its rows).
+    pub orphan_frame_files: usize,
     /// Artifact folders of jobs that no longer exist.
     pub orphan_artifacts: usize,
     /// Queued jobs whose scene is gone, canceled.
@@ -74,6 +77,16 @@ pub async fn finish_removal(store: &Store, data_dir: &Path, id: &str) -> anyhow:
     Ok(())
 }
 
+/// The stem a frame's files share: `12.jpg`, `12.preview.jpg`, `12.png` -> `12`.
+fn frame_stem(file: &str) -> &str {
+    file.split('.').next().unwrap_or(file)
+}
+
+/// A frame's image, preview or mask (not `labels.json` or other scene-wide files).
+fn is_frame_file(file: &str) -> bool {
+    file.ends_with(".jpg") || (file.ends_with(".png") && !file.starts_with("labels"))
+}
+
 /// Names of the entries of a folder (none when it does not exist).
 fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
     match std::fs::read_dir(dir) {
@@ -106,12 +119,19 @@ pub async fn reconcile(store: &Store, data_dir: &Path) -> anyhow::Result<Swept> 
             out.orphan_folders += 1;
             continue;
         }
-        // Half-written files (previews are written as `<name>.tmp`, then renamed).
+        // Half-written files (previews are written as `<name>.tmp`, then renamed), and
+        // frame files no row names: frames are appended files first, rows second, and
+        // removed rows first, files second.
+        let stems = store.frame_files(&name).await?;
         for sub in ["color", "instance"] {
             for f in entries(&dir.join(sub))? {
+                let path = dir.join(sub).join(&f);
                 if f.ends_with(".tmp") {
-                    let _ = std::fs::remove_file(dir.join(sub).join(&f));
+                    let _ = std::fs::remove_file(path);
                     out.partial_files += 1;
+                } else if is_frame_file(&f) && !stems.contains(frame_stem(&f)) {
+                    let _ = std::fs::remove_file(path);
+                    out.orphan_frame_files += 1;
                 }
             }
         }

@@ -24,6 +24,10 @@ pub struct WorkerConfig {
     pub max_memory_mb: u64,
     /// Memory one running job is counted for, in MB.
     pub job_memory_mb: u64,
+    /// Scenes indexed at the same time.
+    pub max_concurrent_indexing: usize,
+    /// How long finished jobs and their artifacts are kept (None: for ever).
+    pub job_retention: Option<Duration>,
 }
 
 impl WorkerConfig {
@@ -34,6 +38,8 @@ impl WorkerConfig {
             scene_cache_bytes: super::scene_cache::DEFAULT_SCENE_CACHE_MB << 20,
             max_memory_mb: 0,
             job_memory_mb: DEFAULT_JOB_MEMORY_MB,
+            max_concurrent_indexing: 2,
+            job_retention: None,
         }
     }
 }
@@ -100,6 +106,11 @@ pub struct JobSystem {
     tracker: TaskTracker,
     metrics: Arc<Metrics>,
     cfg: WorkerConfig,
+    /// Slots of the scenes indexed at the same time, and how many wait for one.
+    indexing: Arc<tokio::sync::Semaphore>,
+    indexing_waiting: Arc<std::sync::atomic::AtomicUsize>,
+    /// Workers alive and the jobs this process claimed (see [`super::watchdog`]).
+    pub(super) watch: Arc<super::watchdog::Watch>,
 }
 
 impl JobSystem {
@@ -120,16 +131,77 @@ impl JobSystem {
             shutdown: CancellationToken::new(),
             tracker: TaskTracker::new(),
             metrics,
+            watch: Arc::new(Default::default()),
+            indexing: Arc::new(tokio::sync::Semaphore::new(
+                cfg.max_concurrent_indexing.max(1),
+            )),
+            indexing_waiting: Arc::new(Default::default()),
             cfg,
         }
     }
 
-    /// Start the workers.
+    /// Start the workers and their watchdog.
     pub fn start(&self) {
         for n in 0..self.cfg.workers.max(1) {
             let me = self.clone();
-            self.tracker.spawn(async move { me.worker_loop(n).await });
+            let alive = super::watchdog::Alive::new(&self.watch);
+            let task = self.tracker.spawn(async move {
+                let _alive = alive;
+                me.worker_loop(n).await
+            });
+            self.watch.add_worker(task.abort_handle());
         }
+        let me = self.clone();
+        self.tracker
+            .spawn(async move { super::watchdog::run(me, super::watchdog::INTERVAL).await });
+        if let Some(keep) = self.cfg.job_retention {
+            let me = self.clone();
+            self.tracker
+                .spawn(async move { super::retention::run(me, keep).await });
+        }
+    }
+
+    /// Wait for one of the `max_concurrent_indexing` slots; held until dropped.
+    pub async fn indexing_slot(&self) -> Option<tokio::sync::OwnedSemaphorePermit> {
+        use std::sync::atomic::Ordering;
+        self.indexing_waiting.fetch_add(1, Ordering::SeqCst);
+        let slot = self.indexing.clone().acquire_owned().await.ok();
+        self.indexing_waiting.fetch_sub(1, Ordering::SeqCst);
+        slot
+    }
+
+    /// Scenes waiting for an indexing slot.
+    pub fn indexing_backlog(&self) -> usize {
+        self.indexing_waiting
+            .load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// Workers whose loop is running.
+    pub fn live_workers(&self) -> usize {
+        self.watch.live()
+    }
+
+    /// Test hook: stop one worker as a crash would (its task ends wherever it is, a job it
+    /// was running included). False when no worker is left.
+    #[doc(hidden)]
+    pub fn abort_worker_for_test(&self) -> bool {
+        self.watch.abort_one()
+    }
+
+    pub(super) fn store(&self) -> &Store {
+        &self.store
+    }
+
+    pub(super) fn running(&self) -> &RunningJobs {
+        &self.running
+    }
+
+    pub(super) fn is_shutting_down(&self) -> bool {
+        self.shutdown.is_cancelled()
+    }
+
+    pub(super) async fn shutdown_signal(&self) {
+        self.shutdown.cancelled().await
     }
 
     /// A job was queued or a scene became ready: wake the workers.
@@ -179,6 +251,7 @@ impl JobSystem {
             };
             match self.store.claim_next_job().await {
                 Ok(Some(job)) => {
+                    self.watch.claimed(&job.id);
                     self.run(job).await;
                     drop(reserved);
                     continue;
@@ -222,6 +295,9 @@ impl JobSystem {
         let started = Instant::now();
         let token = self.shutdown.child_token();
         self.running.insert(&job.id, token.clone());
+        // Should this worker's task end half-way (a crash of the worker, the test hook),
+        // the job's own task is stopped and its entry goes; the watchdog fails the row.
+        let mut live = super::watchdog::LiveJob::new(&self.running, &job.id);
         tracing::info!(job = %job.id, attempt = job.attempts, "job started");
         let outcome = match self.load_scene(&job.scene_id).await {
             Ok(scene) => {
@@ -240,7 +316,9 @@ impl JobSystem {
                 // Each job runs in a task of its own: a panic in the pipeline ends this
                 // job `failed` (kind `internal`) and the worker goes on to the next one.
                 let grounder = self.grounder.clone();
-                match tokio::spawn(async move { grounder.ground(ctx).await }).await {
+                let task = tokio::spawn(async move { grounder.ground(ctx).await });
+                live.task(task.abort_handle());
+                match task.await {
                     Ok(outcome) => outcome,
                     Err(e) => {
                         let why = match e.try_into_panic() {
@@ -261,7 +339,6 @@ impl JobSystem {
             }
             Err(e) => Err(e),
         };
-        self.running.remove(&job.id);
         let outcome_label;
         if self.shutdown.is_cancelled() && token.is_cancelled() {
             // Interrupted by shutdown (not by the user): leave it resumable.
@@ -269,6 +346,8 @@ impl JobSystem {
                 tracing::error!(job = %job.id, "cannot requeue job at shutdown: {e}");
             }
             tracing::info!(job = %job.id, "job interrupted by shutdown; queued again");
+            self.watch.settled(&job.id);
+            drop(live);
             return;
         }
         let written = match outcome {
@@ -295,6 +374,8 @@ impl JobSystem {
                     .await
             }
         };
+        self.watch.settled(&job.id);
+        drop(live);
         match written {
             Ok(true) => tracing::info!(job = %job.id, outcome = outcome_label, "job finished"),
             Ok(false) => tracing::info!(job = %job.id, "job was canceled while running"),

@@ -26,6 +26,9 @@ pub struct Limits {
     pub max_files: u64,
     /// Most pixels one image of the scene may declare (checked from its header).
     pub max_image_pixels: u64,
+    /// Most pixels the whole scene may hold: frames x (colour + depth pixels), checked
+    /// from the first frame's headers before any frame is decoded.
+    pub max_scene_pixels: u64,
 }
 
 /// Decide the kind from the leading bytes (authoritative) with the content type as a hint.

@@ -54,6 +54,55 @@ fn image_size(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {
         .map_err(|e| SceneError::BadImage(format!("{what}: unreadable image: {e}")))
 }
 
+/// Most pixels a whole scene may hold (frames x (colour + depth pixels)) when the caller
+/// names no limit: 10 Gpx is about 6,400 frames of ScanNet (1296x968 colour, 640x480 depth).
+pub const DEFAULT_MAX_SCENE_PIXELS: u64 = 10_000_000_000;
+
+/// The refusal of a scene of `frames` frames of `color` + `depth` pixels each when that is
+/// over `max` pixels (setting `max_scene_pixels`).
+pub fn scene_pixels_error(
+    frames: u64,
+    color: (u32, u32),
+    depth: (u32, u32),
+    max: u64,
+) -> Option<SceneError> {
+    let per_frame =
+        u64::from(color.0) * u64::from(color.1) + u64::from(depth.0) * u64::from(depth.1);
+    let total = frames.saturating_mul(per_frame);
+    (total > max).then(|| {
+        SceneError::SceneTooLarge(format!(
+            "the scene has {frames} frames of {}x{} colour + {}x{} depth = {total} pixels, \
+             over the limit of {max} pixels (max_scene_pixels); send fewer frames",
+            color.0, color.1, depth.0, depth.1
+        ))
+    })
+}
+
+/// Refuse a scene over `max` pixels in all (see [`scene_pixels_error`]) from the headers of
+/// its first frame, before any frame is decoded.
+/// An image over `max_pixels` on its own is named as such first.
+pub fn check_scene_pixels(files: &SceneFiles, max_pixels: u64, max: u64) -> Result<(), SceneError> {
+    let Some(first) = files.frames.first() else {
+        return Ok(());
+    };
+    let what = format!("frame {} colour", first.name);
+    let color = image_size(&first.color, &what)?;
+    check_pixels(color.0, color.1, max_pixels, &what)?;
+    let depth = match &first.depth {
+        Some(d) => {
+            let what = format!("frame {} depth", first.name);
+            let size = image_size(d, &what)?;
+            check_pixels(size.0, size.1, max_pixels, &what)?;
+            size
+        }
+        None => (0, 0),
+    };
+    match scene_pixels_error(files.frames.len() as u64, color, depth, max) {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
 /// Most pixels one uploaded image may declare (colour, depth or instance mask) when the
 /// caller names no limit: 50 Mpx holds an 8K frame. Anything larger is refused from its
 /// header, before a byte of pixels is allocated.

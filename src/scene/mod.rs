@@ -33,6 +33,9 @@ pub enum SceneError {
     DepthSize(String),
     #[error("{0}")]
     ImageTooLarge(String),
+    /// Frames x pixels over `max_scene_pixels`.
+    #[error("{0}")]
+    SceneTooLarge(String),
     #[error("{0}")]
     Io(String),
 }
@@ -51,6 +54,7 @@ impl SceneError {
             SceneError::BadImage(_) => "unreadable_image",
             SceneError::DepthSize(_) => "depth_size_mismatch",
             SceneError::ImageTooLarge(_) => "image_too_large",
+            SceneError::SceneTooLarge(_) => "scene_too_large",
             SceneError::Io(_) => "storage_error",
         }
     }

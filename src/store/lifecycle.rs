@@ -63,6 +63,17 @@ impl Store {
         Ok(ids.into_iter().collect())
     }
 
+    /// The file stems of a scene's frames (under `color/` and `instance/`).
+    pub async fn frame_files(&self, scene_id: &str) -> Result<HashSet<String>, StoreError> {
+        let stems: Vec<String> = sqlx::query_scalar(
+            "SELECT COALESCE(file, CAST(idx AS TEXT)) FROM frames WHERE scene_id = ?",
+        )
+        .bind(scene_id)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(stems.into_iter().collect())
+    }
+
     /// The ids of every job ever run on a scene (their artifacts go with it).
     pub async fn job_ids_of_scene(&self, scene_id: &str) -> Result<Vec<String>, StoreError> {
         Ok(
@@ -71,6 +82,23 @@ impl Store {
                 .fetch_all(&self.pool)
                 .await?,
         )
+    }
+
+    /// Delete the jobs that finished before `cutoff` (RFC 3339) with their trace, events
+    /// and webhook rows; returns their ids (their artifacts are the caller's to remove).
+    pub async fn delete_finished_before(&self, cutoff: &str) -> Result<Vec<String>, StoreError> {
+        let ids: Vec<String> = sqlx::query_scalar(
+            "DELETE FROM jobs WHERE status IN ('succeeded', 'failed', 'canceled') \
+             AND finished_at IS NOT NULL AND julianday(finished_at) < julianday(?) RETURNING id",
+        )
+        .bind(cutoff)
+        .fetch_all(&self.pool)
+        .await?;
+        if !ids.is_empty() {
+            self.job_cache.invalidate();
+            self.events.changed_all();
+        }
+        Ok(ids)
     }
 
     /// Does a job row exist?

@@ -6,7 +6,7 @@ use serde_json::Value;
 use std::time::Duration;
 
 /// Frames of the tiny scene renamed to `names`, their cameras moved to x = `x`.
-fn more_frames(names: &[u64], x: f64) -> Vec<(String, Vec<u8>)> {
+pub fn more_frames(names: &[u64], x: f64) -> Vec<(String, Vec<u8>)> {
     let base = tiny_scene_files(2);
     let mut out = Vec::new();
     for n in names {

@@ -2,6 +2,11 @@
 //! problem+json refusal while the same server keeps answering, and without the process's
 //! peak memory jumping by what the input declares.
 
+mod append_crash;
+mod backpressure;
+mod limits;
+mod watchdog;
+
 use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
 
 /// A PNG chunk: length, type, data, CRC over type and data.
@@ -43,7 +48,7 @@ fn jpeg_claiming(original: &[u8], w: u16, h: u16) -> Vec<u8> {
 }
 
 /// Peak resident memory of this process in kB (Linux), if it can be read.
-fn vm_hwm_kb() -> Option<u64> {
+pub(super) fn vm_hwm_kb() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     line.split_whitespace().nth(1)?.parse().ok()
