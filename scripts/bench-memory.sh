@@ -58,7 +58,7 @@ done
 
 # shellcheck disable=SC2086 # EXTRA_ENV is a list of VAR=value words
 start_serve GROUNDER_WORKERS="$WORKERS" GROUNDER_DETECTOR=oracle GROUNDER_VLM_BASE_URL="$ORACLE_URL/v1" \
-    GROUNDER_VLM_MODEL=oracle GROUNDER_VLM_API_KEY=x ${EXTRA_ENV:-}
+    GROUNDER_VLM_MODEL=grounder-oracle GROUNDER_VLM_API_KEY=x ${EXTRA_ENV:-}
 
 rss() { awk '/^VmRSS/ {print int($2 / 1024)}' "/proc/$SERVER/status"; }
 hwm() { awk '/^VmHWM/ {print int($2 / 1024)}' "/proc/$SERVER/status"; }

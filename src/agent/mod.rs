@@ -216,6 +216,8 @@ impl VlmGrounder {
         let grids = stitching::run(self, ctx, &pre).await?;
         drop(slot);
         let choice = grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await?;
+        // The grids' JPEGs are on disk as artifacts; the rest of the job does not need them.
+        drop(grids);
         let slot = self.compute_slot(ctx).await?;
         let projected =
             projection::run(self, ctx, &analysis.target_class, &pre, &choice, layout).await?;

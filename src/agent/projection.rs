@@ -319,6 +319,7 @@ pub async fn run(
     );
     let anchor_idx = choice.frame_idx;
     let anchor_image = choice.image.clone();
+    let trace = ctx.trace.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
@@ -406,18 +407,15 @@ pub async fn run(
                 (b, moved, planar)
             });
             let support_ms = ms(tsup);
-            // The masks of the views used and the object's points, for the exports.
-            let mut mask_files = vec![(anchor_idx, exports::mask_png(&anchor_mask))];
+            // The masks of the views used and the object's points, written out as encoded.
+            let mut mask_files = vec![(anchor_idx, &anchor_mask)];
             for (i, c) in &clouds {
                 if fusion.views.iter().any(|v| v.index == *i && v.kept) {
-                    mask_files.push((*i, exports::mask_png(&c.mask)));
+                    mask_files.push((*i, &c.mask));
                 }
             }
-            let object = exports::object_ply(&fusion.kept, &af.camera, &anchor_image);
-            let exports = exports::Exports {
-                masks: mask_files,
-                object,
-            };
+            let exports =
+                exports::write(&trace, &mask_files, &fusion.kept, &af.camera, &anchor_image);
             (
                 fusion,
                 single_view_box(&anchor_pts, &params),
@@ -434,7 +432,7 @@ pub async fn run(
         JobFailure::new("projection_failed", "no points survived outlier removal")
     })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
-    let exported = exports::store(ctx, exports).await?;
+    let exported = exports?;
     let view_json: Vec<_> = views
         .iter()
         .zip(&view_boxes)

@@ -8,6 +8,7 @@
 
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// Pinhole intrinsics of one image (colour or depth) together with that image's size.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -76,7 +77,84 @@ impl Intrinsics {
 pub struct DepthMap {
     pub width: u32,
     pub height: u32,
-    pub data: Vec<u16>,
+    pub data: DepthData,
+}
+
+/// The values of a depth image: owned, or a window onto a read-only buffer shared with other
+/// images (a scene's depth file mapped into memory, see `scene::depth_file`). Reads as a
+/// `[u16]` slice either way; writing to a shared one first copies it.
+#[derive(Clone)]
+pub enum DepthData {
+    Owned(Vec<u16>),
+    Shared {
+        buf: Arc<dyn AsRef<[u16]> + Send + Sync>,
+        start: usize,
+        len: usize,
+    },
+}
+
+impl DepthData {
+    /// Whether the values are a window onto a shared buffer (not a copy of their own).
+    pub fn is_shared(&self) -> bool {
+        matches!(self, DepthData::Shared { .. })
+    }
+
+    /// The values as a vector of their own (moved when owned, copied when shared).
+    pub fn into_vec(self) -> Vec<u16> {
+        match self {
+            DepthData::Owned(v) => v,
+            shared => shared.to_vec(),
+        }
+    }
+}
+
+impl std::ops::Deref for DepthData {
+    type Target = [u16];
+    fn deref(&self) -> &[u16] {
+        match self {
+            DepthData::Owned(v) => v,
+            DepthData::Shared { buf, start, len } => &(**buf).as_ref()[*start..*start + *len],
+        }
+    }
+}
+
+impl std::ops::DerefMut for DepthData {
+    fn deref_mut(&mut self) -> &mut [u16] {
+        if let DepthData::Shared { .. } = self {
+            *self = DepthData::Owned(self.to_vec());
+        }
+        match self {
+            DepthData::Owned(v) => v,
+            DepthData::Shared { .. } => unreachable!("made owned above"),
+        }
+    }
+}
+
+impl<'a> IntoIterator for &'a DepthData {
+    type Item = &'a u16;
+    type IntoIter = std::slice::Iter<'a, u16>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter()
+    }
+}
+
+impl From<Vec<u16>> for DepthData {
+    fn from(v: Vec<u16>) -> Self {
+        DepthData::Owned(v)
+    }
+}
+
+impl PartialEq for DepthData {
+    fn eq(&self, other: &Self) -> bool {
+        **self == **other
+    }
+}
+
+impl std::fmt::Debug for DepthData {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let kind = if self.is_shared() { "shared" } else { "owned" };
+        write!(f, "DepthData({kind}, {} values)", self.len())
+    }
 }
 
 impl DepthMap {
@@ -85,8 +163,27 @@ impl DepthMap {
         Self {
             width,
             height,
-            data,
+            data: DepthData::Owned(data),
         }
+    }
+
+    /// A depth image whose values are `buf[start .. start + width * height]`, without a copy;
+    /// `None` when the buffer is too short.
+    pub fn shared(
+        width: u32,
+        height: u32,
+        buf: Arc<dyn AsRef<[u16]> + Send + Sync>,
+        start: usize,
+    ) -> Option<Self> {
+        let len = width as usize * height as usize;
+        if (*buf).as_ref().len() < start.checked_add(len)? {
+            return None;
+        }
+        Some(Self {
+            width,
+            height,
+            data: DepthData::Shared { buf, start, len },
+        })
     }
 
     /// Raw millimetre value at integer pixel (x, y); 0 outside the image.

@@ -162,6 +162,18 @@ pub fn voxel_downsample_colored(points: &[ColoredPoint], voxel: f64) -> Vec<Colo
 /// Binary little-endian PLY: `x y z` as float, `red green blue` as uchar, one vertex per
 /// point; `comment` lines go into the header (newlines are replaced by spaces).
 pub fn encode_ply(points: &[ColoredPoint], comments: &[String]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(256 + points.len() * 15);
+    // Writing into a vector cannot fail.
+    let _ = write_ply(&mut out, points, comments);
+    out
+}
+
+/// [`encode_ply`] into a writer (a file, as the points are encoded).
+pub fn write_ply(
+    out: &mut dyn std::io::Write,
+    points: &[ColoredPoint],
+    comments: &[String],
+) -> std::io::Result<()> {
     let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
     for c in comments {
         header.push_str("comment ");
@@ -173,15 +185,16 @@ pub fn encode_ply(points: &[ColoredPoint], comments: &[String]) -> Vec<u8> {
          property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
         points.len()
     ));
-    let mut out = Vec::with_capacity(header.len() + points.len() * 15);
-    out.extend_from_slice(header.as_bytes());
+    out.write_all(header.as_bytes())?;
+    let mut rec = [0u8; 15];
     for (p, c) in points {
         for a in 0..3 {
-            out.extend_from_slice(&(p[a] as f32).to_le_bytes());
+            rec[a * 4..a * 4 + 4].copy_from_slice(&(p[a] as f32).to_le_bytes());
         }
-        out.extend_from_slice(c);
+        rec[12..].copy_from_slice(c);
+        out.write_all(&rec)?;
     }
-    out
+    Ok(())
 }
 
 #[cfg(test)]

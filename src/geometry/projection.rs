@@ -319,7 +319,7 @@ mod tests {
         let bad = DepthMap {
             width: 40,
             height: 29,
-            data: vec![0; 1160],
+            data: vec![0; 1160].into(),
         };
         assert!(project_points(&[], &c, &bad, &GeometryParams::default()).is_err());
     }

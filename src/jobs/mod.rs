@@ -16,6 +16,7 @@ use futures::future::BoxFuture;
 use serde::Serialize;
 use serde_json::Value;
 use std::collections::HashMap;
+use std::io::Write;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use tokio_util::sync::CancellationToken;
@@ -89,6 +90,24 @@ impl TraceSink {
 
     /// Store an artifact (e.g. a stitched JPEG) and return its URL path.
     pub async fn artifact(&self, name: &str, bytes: Vec<u8>) -> Result<String, JobFailure> {
+        let (sink, name) = (self.clone(), name.to_string());
+        tokio::task::spawn_blocking(move || {
+            sink.write_artifact(&name, move |w: &mut dyn Write| w.write_all(&bytes))
+        })
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("artifact writer failed: {e}")))?
+    }
+
+    /// Write an artifact as it is produced: `produce` writes into the file (buffered), which
+    /// appears under its name only once complete (written beside it and renamed, so a
+    /// reader never sees half a file), without the whole content ever held in memory.
+    /// Blocking: call it from blocking code (e.g. inside `spawn_blocking`). Returns the
+    /// artifact's URL path.
+    pub fn write_artifact(
+        &self,
+        name: &str,
+        produce: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+    ) -> Result<String, JobFailure> {
         let safe = name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
@@ -99,20 +118,18 @@ impl TraceSink {
                 format!("invalid artifact name {name:?}"),
             ));
         }
-        let dir = self.artifact_dir.clone();
+        let dir = &self.artifact_dir;
         let path = dir.join(name);
-        // Written beside its final name and renamed, so a reader never sees half a file.
         let tmp = dir.join(format!(".{name}.{}.tmp", uuid::Uuid::now_v7()));
-        tokio::task::spawn_blocking(move || {
-            std::fs::create_dir_all(&dir)?;
-            std::fs::write(&tmp, bytes)?;
-            std::fs::rename(&tmp, &path).inspect_err(|_| {
-                let _ = std::fs::remove_file(&tmp);
-            })
-        })
-        .await
-        .map_err(|e| JobFailure::new("internal", format!("artifact writer failed: {e}")))?
-        .map_err(|e| {
+        let written = (|| {
+            std::fs::create_dir_all(dir)?;
+            let mut out = std::io::BufWriter::with_capacity(1 << 16, std::fs::File::create(&tmp)?);
+            produce(&mut out)?;
+            out.into_inner().map_err(|e| e.into_error())?;
+            std::fs::rename(&tmp, &path)
+        })();
+        written.map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
             JobFailure::new(
                 "storage_error",
                 format!("cannot write artifact {name}: {e}"),
@@ -170,5 +187,75 @@ impl RunningJobs {
             .ok()
             .and_then(|g| g.get(id).map(|t| t.cancel()))
             .is_some()
+    }
+}
+
+#[cfg(test)]
+mod artifact_tests {
+    use super::*;
+
+    async fn sink() -> (tempfile::TempDir, TraceSink) {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(&dir.path().join("db")).await.unwrap();
+        let sink = TraceSink::new(store, "j1".into(), dir.path().join("artifacts/j1"));
+        (dir, sink)
+    }
+
+    fn names(dir: &std::path::Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[tokio::test]
+    async fn an_artifact_is_written_as_produced_and_appears_only_when_complete() {
+        let (dir, sink) = sink().await;
+        let art = dir.path().join("artifacts/j1");
+        let seen_during = std::sync::Arc::new(Mutex::new(Vec::new()));
+        let seen = seen_during.clone();
+        let art2 = art.clone();
+        let url = sink
+            .write_artifact("big.bin", move |w| {
+                for i in 0..64u8 {
+                    w.write_all(&[i; 4096])?;
+                }
+                w.flush()?;
+                // Mid-write: only the temporary file exists, already holding the bytes.
+                let n = names(&art2);
+                let tmp = n.iter().find(|n| n.ends_with(".tmp")).cloned();
+                let len = tmp.map(|t| std::fs::metadata(art2.join(t)).unwrap().len());
+                seen.lock().unwrap().push((n, len));
+                Ok(())
+            })
+            .unwrap();
+        assert_eq!(url, "/v1/jobs/j1/artifacts/big.bin");
+        let (during, len) = seen_during.lock().unwrap()[0].clone();
+        assert!(!during.contains(&"big.bin".to_string()), "{during:?}");
+        assert_eq!(len, Some(64 * 4096), "streamed to disk before the end");
+        assert_eq!(names(&art), vec!["big.bin".to_string()]);
+        let bytes = std::fs::read(art.join("big.bin")).unwrap();
+        assert_eq!(bytes.len(), 64 * 4096);
+        assert_eq!(bytes[4096 * 63], 63);
+    }
+
+    #[tokio::test]
+    async fn a_failing_producer_or_a_bad_name_leaves_no_file() {
+        let (dir, sink) = sink().await;
+        let e = sink
+            .write_artifact("x.ply", |w| {
+                w.write_all(b"half")?;
+                Err(std::io::Error::other("encoder broke"))
+            })
+            .unwrap_err();
+        assert_eq!(e.code, "storage_error");
+        assert!(e.detail.contains("encoder broke"), "{}", e.detail);
+        assert!(names(&dir.path().join("artifacts/j1")).is_empty());
+        let e = sink.write_artifact("../x", |_| Ok(())).unwrap_err();
+        assert_eq!(e.code, "internal");
+        let url = sink.artifact("a.txt", b"hi".to_vec()).await.unwrap();
+        assert!(url.ends_with("/a.txt"));
     }
 }

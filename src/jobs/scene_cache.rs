@@ -6,8 +6,9 @@
 //! - loads are single-flight: jobs that start together on a scene nobody holds wait for one
 //!   load instead of decoding a copy each;
 //! - finished scenes stay in a least-recently-used cache whose total size (the bytes of
-//!   their depth maps and frame records) stays under `max_bytes`; a scene larger than the
-//!   whole bound is not kept once its last job ends.
+//!   their frame records, and of depth maps decoded into memory, see [`scene_bytes`]) stays
+//!   under `max_bytes`; a scene larger than the whole bound is not kept once its last job
+//!   ends.
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -18,12 +19,19 @@ use crate::scene::SceneData;
 /// Default bound of the scene cache (`scene_cache_mb`).
 pub const DEFAULT_SCENE_CACHE_MB: u64 = 128;
 
-/// The bytes a decoded scene holds: its depth maps plus each frame's record and paths.
+/// The bytes a decoded scene holds of its own: each frame's record and paths, plus depth
+/// maps decoded into memory. Depth read through the scene's mapped depth file (the usual
+/// case, see `scene::depth_file`) is not counted: those are clean file pages, shared by
+/// every job and process, which the kernel drops when memory is short.
 pub fn scene_bytes(s: &SceneData) -> u64 {
     s.frames
         .iter()
         .map(|f| {
-            let depth = f.depth.data.len() as u64 * 2;
+            let depth = if f.depth.data.is_shared() {
+                0
+            } else {
+                f.depth.data.len() as u64 * 2
+            };
             let paths = f.color_path.as_os_str().len()
                 + f.instance_path.as_ref().map_or(0, |p| p.as_os_str().len())
                 + f.name.len();
@@ -227,6 +235,20 @@ mod tests {
         assert_eq!(again, Some(true), "a job holding it shares it");
         drop(held);
         assert!(c.get("big").is_none(), "gone once no job holds it");
+    }
+
+    #[test]
+    fn mapped_depth_is_not_counted_against_the_bound() {
+        let owned = scene("a", 10);
+        let buf: Arc<dyn AsRef<[u16]> + Send + Sync> = Arc::new(vec![1000u16; 10 * 100 * 100]);
+        let mut mapped = owned.clone();
+        for (i, f) in mapped.frames.iter_mut().enumerate() {
+            f.depth = Arc::new(DepthMap::shared(100, 100, buf.clone(), i * 10_000).unwrap());
+        }
+        assert_eq!(mapped.frames[9].depth, owned.frames[9].depth);
+        let (a, b) = (scene_bytes(&owned), scene_bytes(&mapped));
+        assert_eq!(a - b, 10 * 100 * 100 * 2, "{a} vs {b}");
+        assert!(b < 10_000, "records only: {b}");
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

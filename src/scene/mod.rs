@@ -3,6 +3,7 @@
 
 pub mod archive;
 pub mod archive_guard;
+pub mod depth_file;
 pub mod format;
 pub mod formats;
 pub mod import;

@@ -53,7 +53,7 @@ impl SceneData {
 /// Encode a depth map for storage (lz4 over little-endian u16).
 pub fn compress_depth(d: &DepthMap) -> Vec<u8> {
     let mut raw = Vec::with_capacity(d.data.len() * 2);
-    for v in &d.data {
+    for v in d.data.iter() {
         raw.extend_from_slice(&v.to_le_bytes());
     }
     lz4_flex::compress_prepend_size(&raw)

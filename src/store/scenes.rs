@@ -1,5 +1,6 @@
 //! Scene, frame and detection rows.
 
+use futures::StreamExt;
 use nalgebra::Matrix4;
 use serde::Serialize;
 use sqlx::Row;
@@ -8,9 +9,11 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::{now_rfc3339, Store, StoreError};
+use crate::geometry::DepthMap;
 use crate::geometry::{FrameCamera, Intrinsics};
+use crate::scene::depth_file::{self, DepthKey};
 use crate::scene::import::ImportedScene;
-use crate::scene::model::{decompress_depth, pose_from_blob, pose_to_blob};
+use crate::scene::model::{pose_from_blob, pose_to_blob};
 use crate::scene::{FrameData, SceneData};
 use crate::vision::Detection;
 
@@ -452,32 +455,38 @@ impl Store {
         let dw: i64 = s.try_get("depth_width")?;
         let dh: i64 = s.try_get("depth_height")?;
         let rows = sqlx::query(
-            "SELECT idx, name, pose, usable, depth, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? ORDER BY idx",
+            "SELECT idx, name, pose, usable, LENGTH(depth) AS depth_len, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? ORDER BY idx",
         )
         .bind(id)
         .fetch_all(&self.pool)
         .await?;
         let mut raw = Vec::with_capacity(rows.len());
+        let mut blob_sizes = Vec::with_capacity(rows.len());
         for r in rows {
+            blob_sizes.push(r.try_get::<Option<i64>, _>("depth_len")?.unwrap_or(0) as u64);
             raw.push((
                 r.try_get::<i64, _>("idx")?,
                 r.try_get::<String, _>("name")?,
                 r.try_get::<Vec<u8>, _>("pose")?,
                 r.try_get::<i64, _>("usable")? != 0,
-                r.try_get::<Vec<u8>, _>("depth")?,
                 r.try_get::<String, _>("file")?,
             ));
         }
+        let key = DepthKey {
+            frames: raw.len(),
+            width: dw as u32,
+            height: dh as u32,
+            blob_sizes,
+        };
+        let depths = self.scene_depth(id, scene_dir, &key).await?;
         let scene_dir_owned = scene_dir.to_path_buf();
         let align_m = align.unwrap_or_else(Matrix4::identity);
         let frames = tokio::task::spawn_blocking(move || {
-            use rayon::prelude::*;
             let scene_dir = scene_dir_owned;
-            raw.into_par_iter()
-                .map(|(idx, name, pose, usable, depth, file)| {
+            raw.into_iter()
+                .zip(depths)
+                .map(|((idx, name, pose, usable, file), depth)| {
                     let pose = pose_from_blob(&pose).ok_or_else(|| format!("frame {name} pose"))?;
-                    let depth = decompress_depth(&depth, dw as u32, dh as u32)
-                        .ok_or_else(|| format!("frame {name} depth"))?;
                     let inst = scene_dir.join("instance").join(format!("{file}.png"));
                     Ok(FrameData {
                         idx: idx as usize,
@@ -517,5 +526,92 @@ impl Store {
             frames,
             instance_labels,
         }))
+    }
+}
+
+impl Store {
+    /// Every frame's depth of a scene, in frame order: windows onto the scene's mapped depth
+    /// file (`scene::depth_file`), which is written first from the stored blobs when there
+    /// is none yet (one blob in memory at a time). Where the file cannot be written (a
+    /// read-only folder), the blobs are decoded into memory as before, with a warning.
+    async fn scene_depth(
+        &self,
+        id: &str,
+        scene_dir: &Path,
+        key: &DepthKey,
+    ) -> Result<Vec<DepthMap>, StoreError> {
+        let corrupt = |what: String| StoreError::Corrupt(format!("scene {id}: {what}"));
+        let open = |dir: std::path::PathBuf, key: DepthKey| async move {
+            tokio::task::spawn_blocking(move || depth_file::open(&dir, &key)).await
+        };
+        match open(scene_dir.to_path_buf(), key.clone()).await {
+            Ok(Ok(Some(maps))) => return Ok(maps),
+            Ok(Ok(None)) => {}
+            Ok(Err(e)) => tracing::warn!(scene = %id, "cannot map the depth file: {e}"),
+            Err(e) => return Err(corrupt(format!("depth loader failed: {e}"))),
+        }
+        // Blobs go one by one to a writer thread, which decodes and appends them.
+        let (tx, mut rx) = tokio::sync::mpsc::channel::<Vec<u8>>(2);
+        let (dir, k) = (scene_dir.to_path_buf(), key.clone());
+        let writer = tokio::task::spawn_blocking(move || {
+            depth_file::write(&dir, &k, std::iter::from_fn(|| rx.blocking_recv()))
+        });
+        let mut rows = sqlx::query("SELECT depth FROM frames WHERE scene_id = ? ORDER BY idx")
+            .bind(id)
+            .fetch(&self.pool);
+        let mut read_error = None;
+        while let Some(r) = rows.next().await {
+            match r.and_then(|r| r.try_get::<Vec<u8>, _>("depth")) {
+                Ok(blob) => {
+                    if tx.send(blob).await.is_err() {
+                        break; // the writer stopped; its error says why
+                    }
+                }
+                Err(e) => {
+                    read_error = Some(e);
+                    break;
+                }
+            }
+        }
+        drop(rows);
+        drop(tx);
+        let written = writer
+            .await
+            .map_err(|e| corrupt(format!("depth writer failed: {e}")))?;
+        if let Some(e) = read_error {
+            return Err(e.into());
+        }
+        match written {
+            Ok(()) => match open(scene_dir.to_path_buf(), key.clone()).await {
+                Ok(Ok(Some(maps))) => return Ok(maps),
+                Ok(Ok(None)) => {
+                    tracing::warn!(scene = %id, "the depth file just written is not there")
+                }
+                Ok(Err(e)) => tracing::warn!(scene = %id, "cannot map the depth file: {e}"),
+                Err(e) => return Err(corrupt(format!("depth loader failed: {e}"))),
+            },
+            Err(depth_file::WriteError::Corrupt(e)) => return Err(corrupt(format!("depth: {e}"))),
+            Err(depth_file::WriteError::Io(e)) => {
+                tracing::warn!(scene = %id, "cannot write the depth file, decoding depth into memory: {e:#}")
+            }
+        }
+        let rows = sqlx::query("SELECT depth FROM frames WHERE scene_id = ? ORDER BY idx")
+            .bind(id)
+            .fetch_all(&self.pool)
+            .await?;
+        let (w, h) = (key.width, key.height);
+        let decoded = tokio::task::spawn_blocking(move || {
+            rows.iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    let blob: Vec<u8> = r.try_get("depth")?;
+                    depth_file::decode(&blob, w, h)
+                        .ok_or_else(|| StoreError::Corrupt(format!("frame {i} depth")))
+                })
+                .collect::<Result<Vec<_>, StoreError>>()
+        })
+        .await
+        .map_err(|e| corrupt(format!("depth loader failed: {e}")))?;
+        decoded.map_err(|e| corrupt(e.to_string()))
     }
 }

@@ -6,6 +6,7 @@
 mod bench_sse;
 mod config;
 mod crash;
+mod depth_file;
 mod events;
 mod format_writers;
 mod formats;

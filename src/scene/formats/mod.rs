@@ -424,7 +424,7 @@ pub fn read_depth_u16(
         )));
     }
     let d = super::import::read_depth_png(path, what, max_pixels)?;
-    Ok((d.width, d.height, d.data))
+    Ok((d.width, d.height, d.data.into_vec()))
 }
 
 #[cfg(test)]
