@@ -67,20 +67,26 @@ pub async fn append(
     .map_err(|e| ApiError::internal(format!("import task failed: {e}")))??;
     check_fits(&state, &id, &frames, last).await?;
 
-    // Move the new colour images (and masks) in under their frame names.
+    // Move the new colour images (and masks) in under their frame names, beside the
+    // scene's files (fetched from the bucket first when this replica lacks them).
+    let _pin = state
+        .jobs
+        .acquire_scene(&id)
+        .await
+        .map_err(|f| ApiError::internal(f.detail))?;
     let scene_dir = state.jobs.scene_dir(&id);
     let mut moved = Vec::new();
     let mut stored = frames;
     let res: Result<(), ApiError> = (|| {
         for f in &mut stored.frames {
             let dest = scene_dir.join("color").join(format!("{}.jpg", f.name));
-            std::fs::rename(&f.color_path, &dest)
+            crate::storage::move_path(&f.color_path, &dest)
                 .map_err(|e| ApiError::internal(format!("cannot store frame {}: {e}", f.name)))?;
             moved.push(dest);
             if let Some(inst) = &f.instance_path {
                 let dest = scene_dir.join("instance").join(format!("{}.png", f.name));
                 std::fs::create_dir_all(scene_dir.join("instance"))
-                    .and_then(|_| std::fs::rename(inst, &dest))
+                    .and_then(|_| crate::storage::move_path(inst, &dest))
                     .map_err(|e| {
                         ApiError::internal(format!("cannot store mask {}: {e}", f.name))
                     })?;
@@ -93,6 +99,16 @@ pub async fn append(
         for p in moved {
             let _ = std::fs::remove_file(p);
         }
+    };
+    // With a bucket, the new files are uploaded before the rows name them.
+    let res = match res {
+        Ok(()) => state
+            .jobs
+            .storage()
+            .sync_scene(&id)
+            .await
+            .map_err(|e| ApiError::internal(format!("cannot store the new frames: {e}"))),
+        Err(e) => Err(e),
     };
     if let Err(e) = res {
         undo(&moved);
@@ -227,13 +243,14 @@ pub async fn remove(
         )),
         FrameRemoval::Removed { file } => {
             state.jobs.forget_scene(&id);
-            let dir = state.jobs.scene_dir(&id);
-            for p in [
-                dir.join("color").join(format!("{file}.jpg")),
-                dir.join("color").join(format!("{file}.preview.jpg")),
-                dir.join("instance").join(format!("{file}.png")),
-            ] {
-                let _ = tokio::fs::remove_file(p).await;
+            let files = [
+                format!("color/{file}.jpg"),
+                format!("color/{file}.preview.jpg"),
+                format!("instance/{file}.png"),
+            ];
+            if let Err(e) = state.jobs.storage().remove_scene_files(&id, &files).await {
+                // The rows no longer name them; left objects are never read.
+                tracing::warn!(scene = %id, "cannot remove a removed frame's objects: {e}");
             }
             Ok(StatusCode::NO_CONTENT)
         }

@@ -14,12 +14,12 @@ use futures::future::BoxFuture;
 use serde::Serialize;
 use serde_json::Value;
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use tokio_util::sync::CancellationToken;
 
 use crate::geometry::Aabb;
 use crate::scene::SceneData;
+use crate::storage::Storage;
 use crate::store::Store;
 
 pub use scene_cache::SceneCache;
@@ -66,15 +66,15 @@ pub fn mask_artifact(image_id: &str) -> String {
 pub struct TraceSink {
     store: Store,
     job_id: String,
-    artifact_dir: PathBuf,
+    storage: Arc<Storage>,
 }
 
 impl TraceSink {
-    pub fn new(store: Store, job_id: String, artifact_dir: PathBuf) -> Self {
+    pub fn new(store: Store, job_id: String, storage: Arc<Storage>) -> Self {
         Self {
             store,
             job_id,
-            artifact_dir,
+            storage,
         }
     }
 
@@ -97,8 +97,9 @@ impl TraceSink {
                 format!("invalid artifact name {name:?}"),
             ));
         }
-        let dir = self.artifact_dir.clone();
+        let dir = self.storage.artifact_dir(&self.job_id);
         let path = dir.join(name);
+        let copy = self.storage.remote_url().is_some().then(|| bytes.clone());
         // Written beside its final name and renamed, so a reader never sees half a file.
         let tmp = dir.join(format!(".{name}.{}.tmp", uuid::Uuid::now_v7()));
         tokio::task::spawn_blocking(move || {
@@ -116,6 +117,18 @@ impl TraceSink {
                 format!("cannot write artifact {name}: {e}"),
             )
         })?;
+        if let Some(bytes) = copy {
+            self.storage
+                .put_artifact(&self.job_id, name, bytes)
+                .await
+                .map_err(|e| {
+                    tracing::error!(job = %self.job_id, "cannot upload artifact {name}: {e}");
+                    JobFailure::new(
+                        "storage_error",
+                        format!("cannot store artifact {name} in the object store"),
+                    )
+                })?;
+        }
         Ok(format!("/v1/jobs/{}/artifacts/{name}", self.job_id))
     }
 

@@ -24,6 +24,7 @@ mod polling;
 mod problems;
 mod restart;
 mod scenes;
+mod storage;
 mod viewer;
 mod webhooks;
 
