@@ -184,10 +184,9 @@ async fn index_scene(
     // The scene's files stay local while it is indexed (fetched when this replica lacks
     // them); what indexing writes beside them is uploaded before the scene turns ready.
     let _pin = jobs
-        .storage()
         .acquire_scene(scene_id)
         .await
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        .map_err(|e| anyhow::anyhow!("{}", e.detail))?;
     let scene = store
         .load_scene(scene_id, &jobs.scene_dir(scene_id))
         .await?

@@ -178,15 +178,26 @@ impl JobSystem {
     /// The scene's files in its local folder (fetched from the bucket when not), kept
     /// there while the pin lives.
     pub async fn acquire_scene(&self, scene_id: &str) -> Result<ScenePin, JobFailure> {
-        match self.storage.acquire_scene(scene_id).await {
+        if self.storage.remote_url().is_none() {
+            return self
+                .storage
+                .acquire_scene(scene_id, 0)
+                .await
+                .map_err(|e| JobFailure::new("storage_error", e.to_string()));
+        }
+        let revision = match self.store.get_scene(scene_id).await {
+            Ok(Some(s)) => s.revision,
+            Ok(None) => {
+                return Err(JobFailure::new(
+                    "scene_not_found",
+                    format!("scene {scene_id} no longer exists"),
+                ))
+            }
+            Err(e) => return Err(JobFailure::new("storage_error", e.to_string())),
+        };
+        match self.storage.acquire_scene(scene_id, revision).await {
             Ok(pin) => Ok(pin),
             Err(e) => {
-                if let Ok(None) = self.store.get_scene(scene_id).await {
-                    return Err(JobFailure::new(
-                        "scene_not_found",
-                        format!("scene {scene_id} no longer exists"),
-                    ));
-                }
                 tracing::error!(scene = %scene_id, "cannot fetch the scene's files: {e}");
                 Err(JobFailure::new(
                     "storage_error",

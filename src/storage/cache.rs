@@ -9,6 +9,8 @@ struct Entry {
     bytes: u64,
     last_use: u64,
     pins: usize,
+    /// The scene revision the local copy holds every file of.
+    revision: i64,
 }
 
 /// The local cache's index.
@@ -37,8 +39,9 @@ impl CacheIndex {
         self.entries.contains_key(id)
     }
 
-    /// Record a scene now held locally (replacing any earlier record of it; its pins stay).
-    pub fn insert(&mut self, id: &str, bytes: u64) {
+    /// Record a scene now held locally, complete up to `revision` (replacing any earlier
+    /// record of it; its pins stay).
+    pub fn insert(&mut self, id: &str, bytes: u64, revision: i64) {
         let t = self.tick();
         let pins = self.entries.get(id).map_or(0, |e| e.pins);
         self.entries.insert(
@@ -47,8 +50,14 @@ impl CacheIndex {
                 bytes,
                 last_use: t,
                 pins,
+                revision,
             },
         );
+    }
+
+    /// The revision the local copy of a held scene is complete up to.
+    pub fn revision(&self, id: &str) -> Option<i64> {
+        self.entries.get(id).map(|e| e.revision)
     }
 
     /// The scene's size changed (frames appended, previews written).
@@ -121,9 +130,9 @@ mod tests {
     #[test]
     fn eviction_removes_the_least_recently_used_idle_scenes_until_the_bound_holds() {
         let mut c = CacheIndex::new(250);
-        c.insert("a", 100);
-        c.insert("b", 100);
-        c.insert("c", 100);
+        c.insert("a", 100, 0);
+        c.insert("b", 100, 0);
+        c.insert("c", 100, 0);
         // "a" is used again, so "b" is now the least recently used.
         assert!(c.pin("a"));
         c.unpin("a");
@@ -136,8 +145,8 @@ mod tests {
     #[test]
     fn a_scene_in_use_is_never_evicted_even_over_the_bound() {
         let mut c = CacheIndex::new(50);
-        c.insert("a", 100);
-        c.insert("b", 100);
+        c.insert("a", 100, 0);
+        c.insert("b", 100, 0);
         assert!(c.pin("a"));
         assert_eq!(c.evict(), vec!["b".to_string()]);
         assert!(c.holds("a"));

@@ -104,8 +104,12 @@ impl std::fmt::Debug for Storage {
 
 impl Drop for ScenePin {
     fn drop(&mut self) {
-        if let Some(s) = &self.storage {
+        if let Some(s) = self.storage.take() {
             s.lock_index().unpin(&self.id);
+            // The scene may now be evicted, should the cache be over its bound.
+            if let Ok(rt) = tokio::runtime::Handle::try_current() {
+                rt.spawn(async move { s.evict().await });
+            }
         }
     }
 }
@@ -164,13 +168,17 @@ impl Storage {
             if let Ok(meta) = std::fs::metadata(&marker) {
                 let used = meta.modified().ok();
                 let id = entry.file_name().to_string_lossy().into_owned();
-                held.push((used, id, entry.path()));
+                let revision = std::fs::read_to_string(&marker)
+                    .ok()
+                    .and_then(|t| t.trim().parse().ok())
+                    .unwrap_or(0);
+                held.push((used, id, entry.path(), revision));
             }
         }
         held.sort();
         let mut index = self.lock_index();
-        for (_, id, dir) in held {
-            index.insert(&id, dir_bytes(&dir));
+        for (_, id, dir, revision) in held {
+            index.insert(&id, dir_bytes(&dir), revision);
         }
         Ok(())
     }
@@ -221,13 +229,15 @@ impl Storage {
         };
         let dir = self.scene_dir(id);
         remote.push_dir(&dir, &scene_key(id)).await?;
-        tokio::fs::write(dir.join(COMPLETE), b"")
+        // Revision 0: a later use at the scene's real revision checks that nothing is
+        // missing (a listing, no download).
+        tokio::fs::write(dir.join(COMPLETE), b"0")
             .await
             .map_err(|e| local("cannot mark the scene complete", e))?;
         let bytes = dir_bytes(&dir);
         let pinned = {
             let mut index = self.lock_index();
-            index.insert(id, bytes);
+            index.insert(id, bytes, 0);
             index.pin(id)
         };
         self.evict().await;
@@ -256,9 +266,20 @@ impl Storage {
         }
     }
 
-    /// Make sure the scene's files are in its local folder (downloading them from the
-    /// bucket into the cache when not) and keep them there while the pin lives.
-    pub async fn acquire_scene(self: &Arc<Self>, id: &str) -> Result<ScenePin, StorageError> {
+    /// Pin the scene when its local copy is complete up to `revision`.
+    fn pin_fresh(&self, id: &str, revision: i64) -> bool {
+        let mut index = self.lock_index();
+        index.revision(id).is_some_and(|r| r >= revision) && index.pin(id)
+    }
+
+    /// Make sure the scene's files at `revision` (its row's) are in its local folder
+    /// (downloading them from the bucket into the cache when not; for an older local copy
+    /// of a scene that grew, the files it lacks) and keep them there while the pin lives.
+    pub async fn acquire_scene(
+        self: &Arc<Self>,
+        id: &str,
+        revision: i64,
+    ) -> Result<ScenePin, StorageError> {
         let Some(remote) = &self.remote else {
             return Ok(self.no_pin(id));
         };
@@ -266,7 +287,8 @@ impl Storage {
             storage: Some(me.clone()),
             id: id.to_string(),
         };
-        if self.lock_index().pin(id) {
+        if self.pin_fresh(id, revision) {
+            self.evict().await;
             return Ok(pin(self));
         }
         let lock = {
@@ -274,8 +296,20 @@ impl Storage {
             loading.entry(id.to_string()).or_default().clone()
         };
         let _one_at_a_time = lock.lock().await;
-        if self.lock_index().pin(id) {
+        if self.pin_fresh(id, revision) {
             return Ok(pin(self));
+        }
+        if self.lock_index().pin(id) {
+            // Held, but older: fetch what it lacks beside what jobs may be reading.
+            let held = pin(self);
+            let dir = self.scene_dir(id);
+            remote.pull_dir(&scene_key(id), &dir).await?;
+            tokio::fs::write(dir.join(COMPLETE), revision.to_string())
+                .await
+                .map_err(|e| local("cannot mark the scene complete", e))?;
+            let mut index = self.lock_index();
+            index.insert(id, dir_bytes(&dir), revision);
+            return Ok(held);
         }
         // Downloaded beside its place (a name no scene has, so an interrupted download is
         // an orphan folder for the start-up sweep) and renamed into place when complete.
@@ -284,7 +318,7 @@ impl Storage {
             .join(format!(".{id}.part-{}", uuid::Uuid::now_v7()));
         let pulled = remote.pull_dir(&scene_key(id), &part).await;
         let placed = match pulled {
-            Ok(bytes) => self.place_download(id, &part, bytes).await,
+            Ok(bytes) => self.place_download(id, &part, bytes, revision).await,
             Err(e) => Err(e),
         };
         if placed.is_err() {
@@ -297,8 +331,14 @@ impl Storage {
         Ok(pin(self))
     }
 
-    async fn place_download(&self, id: &str, part: &Path, bytes: u64) -> Result<(), StorageError> {
-        tokio::fs::write(part.join(COMPLETE), b"")
+    async fn place_download(
+        &self,
+        id: &str,
+        part: &Path,
+        bytes: u64,
+        revision: i64,
+    ) -> Result<(), StorageError> {
+        tokio::fs::write(part.join(COMPLETE), revision.to_string())
             .await
             .map_err(|e| local("cannot mark the scene complete", e))?;
         let dir = self.scene_dir(id);
@@ -312,7 +352,7 @@ impl Storage {
             .await
             .map_err(|e| local("cannot place the downloaded scene", e))?;
         let mut index = self.lock_index();
-        index.insert(id, bytes);
+        index.insert(id, bytes, revision);
         index.pin(id);
         Ok(())
     }

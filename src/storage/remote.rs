@@ -145,8 +145,9 @@ impl Remote {
         Ok(n)
     }
 
-    /// Download every object under folder `rel` into local folder `dir` (created). Returns
-    /// the bytes written; NotFound-like error when the folder holds nothing.
+    /// Download the objects under folder `rel` into local folder `dir` (created) that it
+    /// lacks (or holds with another size). Returns the bytes of the objects; an error when
+    /// the folder holds nothing.
     pub async fn pull_dir(&self, rel: &str, dir: &Path) -> Result<u64, StorageError> {
         let objects = self.list(rel).await?;
         if objects.is_empty() {
@@ -156,7 +157,12 @@ impl Remote {
             )));
         }
         let mut total = 0;
-        for name in objects.keys() {
+        for (name, size) in &objects {
+            let have = safe_join(dir, name).and_then(|p| std::fs::metadata(p).ok());
+            if have.is_some_and(|m| m.len() == *size) {
+                total += size;
+                continue;
+            }
             let Some(bytes) = self.get(&format!("{rel}/{name}")).await? else {
                 return Err(StorageError::Missing(format!(
                     "{} vanished while it was read",

@@ -137,7 +137,8 @@ async fn a_scene_uploaded_on_replica_a_is_fetched_from_the_bucket_by_replica_b()
     let in_bucket = scene_files(&probe, &id).await;
     let local_a =
         grounder::storage::local_files(&dir_a.path().join("scenes").join(&id)).expect("A's files");
-    assert!(local_a.len() >= 7, "{local_a:?}");
+    let colour = local_a.iter().filter(|(n, _)| n.starts_with("color/"));
+    assert_eq!(colour.count(), 3, "{local_a:?}");
     assert!(in_bucket.contains_key("color/0.jpg"), "{in_bucket:?}");
     for (name, size) in local_a.iter().filter(|(n, _)| !n.starts_with("points_")) {
         assert_eq!(in_bucket.get(name), Some(size), "{name} in the bucket");
@@ -240,34 +241,51 @@ async fn the_cache_evicts_idle_scenes_least_recently_used_first_and_respects_its
     let reader = open(&moto, url, reader_dir.path(), bound).await;
     let held = |id: &str| reader.scene_dir(id).join("color/0.jpg").is_file();
     assert!(!held("s1"));
-    drop(reader.acquire_scene("s1").await.expect("s1"));
-    drop(reader.acquire_scene("s2").await.expect("s2"));
+    drop(reader.acquire_scene("s1", 0).await.expect("s1"));
+    drop(reader.acquire_scene("s2", 0).await.expect("s2"));
     assert_eq!(reader.downloads(), 2);
     assert!(held("s1") && held("s2"));
     // s1 used again: s2 is now the least recently used.
-    drop(reader.acquire_scene("s1").await.expect("s1 again"));
+    drop(reader.acquire_scene("s1", 0).await.expect("s1 again"));
     assert_eq!(
         reader.downloads(),
         2,
         "a held scene is not downloaded again"
     );
-    let pin3 = reader.acquire_scene("s3").await.expect("s3");
+    let pin3 = reader.acquire_scene("s3", 0).await.expect("s3");
     assert!(reader.cached_bytes() <= bound, "{}", reader.cached_bytes());
     assert!(held("s1") && held("s3") && !held("s2"), "s2 evicted");
     assert_eq!(reader.downloads(), 3);
     // Scenes in use stay even beyond the bound; idle ones go.
-    let pin1 = reader.acquire_scene("s1").await.expect("s1 pinned");
-    let pin2 = reader.acquire_scene("s2").await.expect("s2 back");
+    let pin1 = reader.acquire_scene("s1", 0).await.expect("s1 pinned");
+    let pin2 = reader.acquire_scene("s2", 0).await.expect("s2 back");
     assert!(held("s1") && held("s2") && held("s3"));
     assert_eq!(reader.cached_bytes(), 3000, "all three are in use");
     drop((pin1, pin3));
     drop(pin2);
-    drop(reader.acquire_scene("s2").await.expect("s2"));
+    drop(reader.acquire_scene("s2", 0).await.expect("s2"));
     assert!(reader.cached_bytes() <= bound, "{}", reader.cached_bytes());
     assert!(held("s2"));
+    // The scene grew on another replica (revision 1): the held, older copy gets the
+    // files it lacks, without a full download.
+    std::fs::write(writer.scene_dir("s2").join("color/1.jpg"), b"new frame").expect("write");
+    writer.sync_scene("s2").await.expect("sync");
+    assert!(!reader.scene_dir("s2").join("color/1.jpg").exists());
+    let downloads = reader.downloads();
+    drop(
+        reader
+            .acquire_scene("s2", 1)
+            .await
+            .expect("s2 at revision 1"),
+    );
+    assert_eq!(
+        std::fs::read(reader.scene_dir("s2").join("color/1.jpg")).expect("new frame"),
+        b"new frame"
+    );
+    assert_eq!(reader.downloads(), downloads);
     // A scene the bucket does not hold is an error, not an empty folder.
     let e = reader
-        .acquire_scene("nope")
+        .acquire_scene("nope", 0)
         .await
         .err()
         .map(|e| e.to_string());
@@ -280,7 +298,7 @@ async fn the_cache_evicts_idle_scenes_least_recently_used_first_and_respects_its
     let before = again.downloads();
     for id in ["s1", "s2", "s3"] {
         if again.scene_dir(id).join(".complete").is_file() {
-            drop(again.acquire_scene(id).await.expect("held"));
+            drop(again.acquire_scene(id, 0).await.expect("held"));
         }
     }
     assert_eq!(again.downloads(), before);
