@@ -38,6 +38,11 @@ pub struct Config {
     pub addr: String,
     /// Folder holding the database and the uploaded scenes.
     pub data_dir: PathBuf,
+    /// Where scene files and artifacts live: "" (the data dir), `file://DIR` or
+    /// `s3://bucket/prefix` (settings from the AWS_* variables); see docs/storage.md.
+    pub storage: String,
+    /// Bound of the local cache of scenes downloaded from an `s3://` storage, MB.
+    pub storage_cache_mb: u64,
     /// Largest accepted upload body in bytes (413 above).
     pub max_upload_bytes: u64,
     /// Largest total unpacked size of an archive in bytes.
@@ -116,6 +121,8 @@ impl Default for Config {
             method: Method::default(),
             addr: "127.0.0.1:8080".into(),
             data_dir: PathBuf::from("./data"),
+            storage: String::new(),
+            storage_cache_mb: crate::storage::DEFAULT_CACHE_MB,
             max_upload_bytes: 2 << 30,
             max_unpacked_bytes: 8 << 30,
             max_archive_files: 200_000,

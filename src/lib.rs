@@ -1,7 +1,8 @@
 //! grounder: 3D visual grounding as a service (the VLM-Grounder method).
 //!
 //! Data flows one way: `api` → `jobs` → `agent` → (`vlm`, `vision`, `stitch`, `geometry`,
-//! `scene`) ← `store`. `geometry` is pure; `api` knows nothing of geometry.
+//! `scene`) ← `store`;
+//! `jobs` keeps scene files and artifacts through `storage` (a folder or a bucket). `geometry` is pure; `api` knows nothing of geometry.
 
 pub mod agent;
 pub mod api;
@@ -16,6 +17,7 @@ pub mod metrics;
 pub mod scene;
 pub mod startup;
 pub mod stitch;
+pub mod storage;
 pub mod store;
 pub mod synth;
 pub mod vision;

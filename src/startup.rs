@@ -28,6 +28,12 @@ fn anonymous_allowed(addr: &SocketAddr, allow_anonymous: bool) -> bool {
 impl Application {
     /// Open the store, recover interrupted jobs, bind the listener, start the workers.
     pub async fn build(cfg: Config) -> anyhow::Result<Self> {
+        Self::build_with_env(cfg, &crate::config::load::process_env()).await
+    }
+
+    /// [`Self::build`] with `env` in place of the process environment for the settings
+    /// read from outside the configuration (the `AWS_*` variables of an `s3://` storage).
+    pub async fn build_with_env(cfg: Config, env: &[(String, String)]) -> anyhow::Result<Self> {
         let store = Store::open(&cfg.data_dir).await?;
         let (requeued, failed) = store.recover_jobs(cfg.max_attempts).await?;
         if requeued + failed > 0 {
@@ -39,8 +45,22 @@ impl Application {
         }
         // No request of the previous process is still in flight.
         store.idempotency_release_in_flight().await?;
+        let storage = crate::storage::Storage::open(
+            &cfg.storage,
+            &cfg.data_dir,
+            cfg.storage_cache_mb << 20,
+            env,
+        )
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        if let Some(url) = storage.remote_url() {
+            tracing::info!(
+                cached_mb = storage.cached_bytes() >> 20,
+                "scene files and artifacts live in {url}"
+            );
+        }
         // Leftovers of uploads, imports and deletes interrupted by a crash.
-        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir).await?;
+        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir, &storage).await?;
         if !swept.is_empty() {
             tracing::info!(?swept, "cleaned up after the previous process");
         }
@@ -52,6 +72,7 @@ impl Application {
             store.clone(),
             grounder,
             metrics.clone(),
+            storage,
             WorkerConfig {
                 scene_cache_bytes: cfg.scene_cache_mb << 20,
                 max_memory_mb: cfg.max_memory_mb,

@@ -46,9 +46,13 @@ async fn job_file(
     {
         return Err(ApiError::not_found("job", id));
     }
-    tokio::fs::read(state.jobs.artifact_dir(id).join(name))
+    state
+        .jobs
+        .storage()
+        .read_artifact(id, name)
         .await
-        .map_err(|_| {
+        .map_err(|e| ApiError::internal(e.to_string()))?
+        .ok_or_else(|| {
             ApiError::new(
                 StatusCode::NOT_FOUND,
                 "export_not_found",
@@ -211,7 +215,16 @@ pub async fn frame_jpeg(
         .filter(|f| !f.is_empty() && f.chars().all(|c| c.is_ascii_digit()))
         .and_then(|f| f.parse().ok())
         .ok_or_else(missing)?;
-    let path = state.jobs.frame_image(&id, idx).ok_or_else(missing)?;
-    let bytes = tokio::fs::read(path).await.map_err(|_| missing())?;
+    let bytes = state
+        .jobs
+        .frame_jpeg(&id, idx)
+        .await
+        .map_err(|e| match e {
+            crate::jobs::exports::ExportError::SceneNotFound(_) => {
+                ApiError::not_found("scene", &id)
+            }
+            e => ApiError::internal(e.to_string()),
+        })?
+        .ok_or_else(missing)?;
     Ok(([(header::CONTENT_TYPE, "image/jpeg")], bytes))
 }

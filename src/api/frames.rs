@@ -88,6 +88,13 @@ async fn store_frames(
     frames: ImportedScene,
     _staging: Cleanup,
 ) -> Result<axum::Json<SceneRecord>, ApiError> {
+    // The scene's files stay in this replica's cache meanwhile (fetched from the bucket
+    // first when this replica lacks them).
+    let _pin = state
+        .jobs
+        .acquire_scene(&id)
+        .await
+        .map_err(|f| ApiError::internal(f.detail))?;
     let scene_dir = state.jobs.scene_dir(&id);
     let mut moved = Vec::new();
     let res = move_in(&scene_dir, &frames, &mut moved);
@@ -95,6 +102,16 @@ async fn store_frames(
         for p in moved {
             let _ = std::fs::remove_file(p);
         }
+    };
+    // With a bucket, the new files are uploaded before the rows name them.
+    let res = match res {
+        Ok(()) => state
+            .jobs
+            .storage()
+            .sync_scene(&id)
+            .await
+            .map_err(|e| ApiError::internal(format!("cannot store the new frames: {e}"))),
+        Err(e) => Err(e),
     };
     if let Err(e) = res {
         undo(&moved);
@@ -131,13 +148,13 @@ fn move_in(
 ) -> Result<(), ApiError> {
     for f in &frames.frames {
         let dest = scene_dir.join("color").join(format!("{}.jpg", f.name));
-        std::fs::rename(&f.color_path, &dest)
+        crate::storage::move_path(&f.color_path, &dest)
             .map_err(|e| ApiError::internal(format!("cannot store frame {}: {e}", f.name)))?;
         moved.push(dest);
         if let Some(inst) = &f.instance_path {
             let dest = scene_dir.join("instance").join(format!("{}.png", f.name));
             std::fs::create_dir_all(scene_dir.join("instance"))
-                .and_then(|_| std::fs::rename(inst, &dest))
+                .and_then(|_| crate::storage::move_path(inst, &dest))
                 .map_err(|e| ApiError::internal(format!("cannot store mask {}: {e}", f.name)))?;
             moved.push(dest);
         }
@@ -261,13 +278,14 @@ pub async fn remove(
         )),
         FrameRemoval::Removed { file } => {
             state.jobs.forget_scene(&id);
-            let dir = state.jobs.scene_dir(&id);
-            for p in [
-                dir.join("color").join(format!("{file}.jpg")),
-                dir.join("color").join(format!("{file}.preview.jpg")),
-                dir.join("instance").join(format!("{file}.png")),
-            ] {
-                let _ = tokio::fs::remove_file(p).await;
+            let files = [
+                format!("color/{file}.jpg"),
+                format!("color/{file}.preview.jpg"),
+                format!("instance/{file}.png"),
+            ];
+            if let Err(e) = state.jobs.storage().remove_scene_files(&id, &files).await {
+                // The rows no longer name them; left objects are never read.
+                tracing::warn!(scene = %id, "cannot remove a removed frame's objects: {e}");
             }
             Ok(StatusCode::NO_CONTENT)
         }

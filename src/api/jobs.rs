@@ -506,8 +506,13 @@ pub async fn artifact(
     if !visible {
         return Err(ApiError::not_found("job", &id));
     }
-    let path = state.jobs.artifact_dir(&id).join(&name);
-    let bytes = tokio::fs::read(&path).await.map_err(|_| missing())?;
+    let bytes = state
+        .jobs
+        .storage()
+        .read_artifact(&id, &name)
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))?
+        .ok_or_else(missing)?;
     let ct = if name.ends_with(".png") {
         "image/png"
     } else if name.ends_with(".json") {

@@ -146,10 +146,20 @@ async fn import(
     let scene_dir = state.jobs.scene_dir(&id);
     let placed = place(&staged, &scene_dir).await;
     test_pause(&state).await;
-    let placed = match placed {
+    // With a bucket, the files are uploaded before the row turns visible.
+    let stored = match placed {
         Err(e) => Err(ApiError::internal(format!("cannot store the scene: {e}"))),
-        Ok(()) if client_gone.is_cancelled() => Err(gone()),
-        Ok(()) => match state.store.publish_scene(&id, status).await {
+        Ok(()) => state
+            .jobs
+            .storage()
+            .store_scene(&id)
+            .await
+            .map_err(|e| ApiError::internal(format!("cannot store the scene: {e}"))),
+    };
+    let placed = match stored {
+        Err(e) => Err(e),
+        Ok(_) if client_gone.is_cancelled() => Err(gone()),
+        Ok(_pin) => match state.store.publish_scene(&id, status).await {
             Ok(true) => Ok(()),
             Ok(false) => Err(ApiError::internal("the scene was removed while importing")),
             Err(e) => Err(e.into()),
@@ -157,7 +167,7 @@ async fn import(
     };
     if let Err(e) = placed {
         if let Err(u) =
-            crate::jobs::sweep::finish_removal(&state.store, &state.cfg.data_dir, &id).await
+            crate::jobs::sweep::finish_removal(&state.store, state.jobs.storage(), &id).await
         {
             tracing::error!(scene = %id, "cannot undo a failed import (the next start will): {u:#}");
         }
@@ -189,12 +199,16 @@ pub(super) async fn test_pause(state: &AppState) {
     }
 }
 
-/// Move a staged scene folder into place in one rename.
+/// Move a staged scene folder into place in one rename (a copy when a `file://` storage
+/// is on another volume than the data dir's spool).
 async fn place(staged: &std::path::Path, scene_dir: &std::path::Path) -> std::io::Result<()> {
     if let Some(parent) = scene_dir.parent() {
         tokio::fs::create_dir_all(parent).await?;
     }
-    tokio::fs::rename(staged, scene_dir).await
+    let (from, to) = (staged.to_path_buf(), scene_dir.to_path_buf());
+    tokio::task::spawn_blocking(move || crate::storage::move_path(&from, &to))
+        .await
+        .map_err(std::io::Error::other)?
 }
 
 /// The answer nobody reads: the client disconnected before its scene was stored.
@@ -275,7 +289,8 @@ pub async fn delete(
     test_pause(&state).await;
     // The row is `deleting` (hidden); files go first, then the row. Should this stop
     // half-way, the start-up sweep finishes it.
-    if let Err(e) = crate::jobs::sweep::finish_removal(&state.store, &state.cfg.data_dir, &id).await
+    if let Err(e) =
+        crate::jobs::sweep::finish_removal(&state.store, state.jobs.storage(), &id).await
     {
         tracing::error!(scene = %id, "the scene's files could not all be removed; the next start finishes: {e:#}");
     }

@@ -151,6 +151,11 @@ impl JobSystem {
             self.points_cache().put(key, b.clone());
             return Ok(b);
         }
+        // The previews it reads stay local while it is computed.
+        let pin = self
+            .acquire_scene(scene_id)
+            .await
+            .map_err(|f| ExportError::Internal(f.detail))?;
         let scene = self.scene_data(scene_id).await?;
         let bytes = tokio::task::spawn_blocking(move || {
             let b = compute_scene_points(&scene, mm);
@@ -161,6 +166,11 @@ impl JobSystem {
         })
         .await
         .map_err(|e| ExportError::Internal(format!("points task failed: {e}")))?;
+        // Kept in the bucket too, for the replicas that fetch the scene later.
+        if let Err(e) = self.storage().sync_scene(scene_id).await {
+            tracing::warn!(scene = %scene_id, "cannot upload the scene's points: {e}");
+        }
+        drop(pin);
         let b = Arc::new(bytes);
         self.points_cache().put(key, b.clone());
         Ok(b)
@@ -211,6 +221,26 @@ impl JobSystem {
         } else {
             color.is_file().then_some(color)
         }
+    }
+
+    /// The bytes of [`Self::frame_image`], fetching the scene from the bucket first when
+    /// this replica does not hold it. `Ok(None)` when the scene has no such frame.
+    pub async fn frame_jpeg(
+        &self,
+        scene_id: &str,
+        idx: usize,
+    ) -> Result<Option<Vec<u8>>, ExportError> {
+        let _pin = self.acquire_scene(scene_id).await.map_err(|f| {
+            if f.code == "scene_not_found" {
+                ExportError::SceneNotFound(scene_id.to_string())
+            } else {
+                ExportError::Internal(f.detail)
+            }
+        })?;
+        let Some(path) = self.frame_image(scene_id, idx) else {
+            return Ok(None);
+        };
+        Ok(tokio::fs::read(path).await.ok())
     }
 
     /// Compute the default points export in the background (after indexing), so the first

@@ -183,6 +183,12 @@ async fn index_scene(
     let Some(detector) = detector else {
         anyhow::bail!("detector {key:?} could not be loaded (see /readyz)");
     };
+    // The scene's files stay local while it is indexed (fetched when this replica lacks
+    // them); what indexing writes beside them is uploaded before the scene turns ready.
+    let _pin = jobs
+        .acquire_scene(scene_id)
+        .await
+        .map_err(|e| anyhow::anyhow!("{}", e.detail))?;
     let scene = store
         .load_scene(scene_id, &jobs.scene_dir(scene_id))
         .await?
@@ -229,5 +235,9 @@ async fn index_scene(
             .put_detections(scene_id, key, idx, &index.detections)
             .await?;
     }
+    jobs.storage()
+        .sync_scene(scene_id)
+        .await
+        .map_err(|e| anyhow::anyhow!("the previews cannot be stored: {e}"))?;
     Ok(())
 }

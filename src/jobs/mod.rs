@@ -17,12 +17,12 @@ use serde::Serialize;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::io::Write;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use tokio_util::sync::CancellationToken;
 
 use crate::geometry::Aabb;
 use crate::scene::SceneData;
+use crate::storage::Storage;
 use crate::store::Store;
 
 pub use scene_cache::SceneCache;
@@ -69,15 +69,15 @@ pub fn mask_artifact(image_id: &str) -> String {
 pub struct TraceSink {
     store: Store,
     job_id: String,
-    artifact_dir: PathBuf,
+    storage: Arc<Storage>,
 }
 
 impl TraceSink {
-    pub fn new(store: Store, job_id: String, artifact_dir: PathBuf) -> Self {
+    pub fn new(store: Store, job_id: String, storage: Arc<Storage>) -> Self {
         Self {
             store,
             job_id,
-            artifact_dir,
+            storage,
         }
     }
 
@@ -118,7 +118,7 @@ impl TraceSink {
                 format!("invalid artifact name {name:?}"),
             ));
         }
-        let dir = &self.artifact_dir;
+        let dir = &self.storage.artifact_dir(&self.job_id);
         let path = dir.join(name);
         let tmp = dir.join(format!(".{name}.{}.tmp", uuid::Uuid::now_v7()));
         let written = (|| {
@@ -135,6 +135,27 @@ impl TraceSink {
                 format!("cannot write artifact {name}: {e}"),
             )
         })?;
+        if self.storage.remote_url().is_some() {
+            // A bucket holds the artifacts of every replica: upload the finished file (this
+            // runs on a blocking thread of the runtime, so it may wait for the upload).
+            let bytes = std::fs::read(&path).map_err(|e| {
+                JobFailure::new(
+                    "storage_error",
+                    format!("cannot read artifact {name} back: {e}"),
+                )
+            })?;
+            let handle = tokio::runtime::Handle::try_current()
+                .map_err(|_| JobFailure::new("internal", "artifact upload outside the runtime"))?;
+            handle
+                .block_on(self.storage.put_artifact(&self.job_id, name, bytes))
+                .map_err(|e| {
+                    tracing::error!(job = %self.job_id, "cannot upload artifact {name}: {e}");
+                    JobFailure::new(
+                        "storage_error",
+                        format!("cannot store artifact {name} in the object store"),
+                    )
+                })?;
+        }
         Ok(format!("/v1/jobs/{}/artifacts/{name}", self.job_id))
     }
 
@@ -197,7 +218,11 @@ mod artifact_tests {
     async fn sink() -> (tempfile::TempDir, TraceSink) {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::open(&dir.path().join("db")).await.unwrap();
-        let sink = TraceSink::new(store, "j1".into(), dir.path().join("artifacts/j1"));
+        let sink = TraceSink::new(
+            store,
+            "j1".into(),
+            crate::storage::Storage::local(dir.path()),
+        );
         (dir, sink)
     }
 

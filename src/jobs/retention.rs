@@ -38,6 +38,8 @@ pub async fn sweep(jobs: &JobSystem, keep: Duration) -> anyhow::Result<usize> {
     let ids = jobs.store().delete_finished_before(&cutoff).await?;
     for id in &ids {
         super::sweep::remove_dir(&jobs.artifact_dir(id)).await?;
+        // With a bucket, the job's artifacts there go too (a no-op without one).
+        jobs.storage().remove_remote(None, Some(id)).await?;
     }
     Ok(ids.len())
 }

@@ -1,10 +1,11 @@
-//! Keeping the data dir and the store in step. A scene's files exist only while its row
+//! Keeping the data dir (and the bucket of an `s3://` storage) and the store in step. A scene's files exist only while its row
 //! does: deletes remove the files between marking the row `deleting` and removing it, and
 //! at start-up [`reconcile`] finishes what a crash interrupted (rows left `importing` or
 //! `deleting`, folders without a row, artifacts without a job, spooled uploads).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
+use crate::storage::Storage;
 use crate::store::Store;
 
 /// What a sweep removed.
@@ -23,6 +24,8 @@ pub struct Swept {
     pub orphan_frame_files: usize,
     /// Artifact folders of jobs that no longer exist.
     pub orphan_artifacts: usize,
+    /// Scene and artifact folders in the bucket that no row knows.
+    pub orphan_objects: usize,
     /// Queued jobs whose scene is gone, canceled.
     pub jobs_canceled: u64,
 }
@@ -31,14 +34,6 @@ impl Swept {
     pub fn is_empty(&self) -> bool {
         *self == Self::default()
     }
-}
-
-fn scenes_root(data_dir: &Path) -> PathBuf {
-    data_dir.join("scenes")
-}
-
-fn artifacts_root(data_dir: &Path) -> PathBuf {
-    data_dir.join("artifacts")
 }
 
 /// Remove a folder and everything in it; a missing folder is fine. A background writer
@@ -59,20 +54,19 @@ pub async fn remove_dir(dir: &Path) -> std::io::Result<()> {
     last
 }
 
-/// Remove a scene's folder and the artifacts of every job run on it.
-pub async fn remove_scene_files(store: &Store, data_dir: &Path, id: &str) -> anyhow::Result<()> {
-    for job in store.job_ids_of_scene(id).await? {
-        remove_dir(&artifacts_root(data_dir).join(job)).await?;
-    }
-    remove_dir(&scenes_root(data_dir).join(id)).await?;
+/// Remove a scene's files and the artifacts of every job run on it (local copies and, with
+/// a bucket, their objects).
+pub async fn remove_scene_files(store: &Store, storage: &Storage, id: &str) -> anyhow::Result<()> {
+    let jobs = store.job_ids_of_scene(id).await?;
+    storage.remove_scene(id, &jobs).await?;
     Ok(())
 }
 
 /// Finish deleting a scene whose row is `deleting` (or undo an import left `importing`):
-/// files first, then the row. A crash at any point leaves the row hidden until the next
-/// sweep finishes the job.
-pub async fn finish_removal(store: &Store, data_dir: &Path, id: &str) -> anyhow::Result<()> {
-    remove_scene_files(store, data_dir, id).await?;
+/// files (and objects) first, then the row. A crash at any point leaves the row hidden
+/// until the next sweep finishes the job.
+pub async fn finish_removal(store: &Store, storage: &Storage, id: &str) -> anyhow::Result<()> {
+    remove_scene_files(store, storage, id).await?;
     store.remove_hidden_scene(id).await?;
     Ok(())
 }
@@ -98,13 +92,14 @@ fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
     }
 }
 
-/// Reconcile the data dir with the store (run at start-up, before anything serves).
-pub async fn reconcile(store: &Store, data_dir: &Path) -> anyhow::Result<Swept> {
+/// Reconcile the data dir (and the bucket) with the store (run at start-up, before
+/// anything serves).
+pub async fn reconcile(store: &Store, data_dir: &Path, storage: &Storage) -> anyhow::Result<Swept> {
     let mut out = Swept::default();
     // Spooled uploads and unpack folders of requests that never finished.
     remove_dir(&data_dir.join("tmp")).await?;
     for (id, status) in store.hidden_scenes().await? {
-        finish_removal(store, data_dir, &id).await?;
+        finish_removal(store, storage, &id).await?;
         if status == "importing" {
             out.imports_undone += 1;
         } else {
@@ -112,8 +107,11 @@ pub async fn reconcile(store: &Store, data_dir: &Path) -> anyhow::Result<Swept> 
         }
     }
     let known = store.scene_ids().await?;
-    for name in entries(&scenes_root(data_dir))? {
-        let dir = scenes_root(data_dir).join(&name);
+    // Local folders: scene folders (with a bucket, the cache) and, from the cache,
+    // downloads and evictions cut short (`.<id>.part-*`, `.<id>.evicted-*`).
+    let scenes_root = storage.scenes_root();
+    for name in entries(&scenes_root)? {
+        let dir = scenes_root.join(&name);
         if !known.contains(&name) {
             remove_dir(&dir).await?;
             out.orphan_folders += 1;
@@ -136,10 +134,26 @@ pub async fn reconcile(store: &Store, data_dir: &Path) -> anyhow::Result<Swept> 
             }
         }
     }
-    for name in entries(&artifacts_root(data_dir))? {
+    for name in entries(&storage.artifacts_root())? {
         if !store.job_exists(&name).await? {
-            remove_dir(&artifacts_root(data_dir).join(&name)).await?;
+            remove_dir(&storage.artifact_dir(&name)).await?;
             out.orphan_artifacts += 1;
+        }
+    }
+    // The bucket: objects are written after their row exists and removed before it goes,
+    // so objects without a row are left by a crash (or by a database that does not own
+    // this bucket prefix: one prefix belongs to one database).
+    let (scenes, jobs) = storage.remote_ids().await?;
+    for id in scenes {
+        if !known.contains(&id) {
+            storage.remove_remote(Some(&id), None).await?;
+            out.orphan_objects += 1;
+        }
+    }
+    for job in jobs {
+        if !store.job_exists(&job).await? {
+            storage.remove_remote(None, Some(&job)).await?;
+            out.orphan_objects += 1;
         }
     }
     out.jobs_canceled = store.cancel_jobs_without_scene().await?;

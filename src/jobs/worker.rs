@@ -12,6 +12,7 @@ use super::{
     Grounder, GroundingOutput, JobContext, JobFailure, RunningJobs, SceneCache, TraceSink,
 };
 use crate::metrics::{Metrics, OutcomeLabels};
+use crate::storage::{ScenePin, Storage};
 use crate::store::{JobRecord, JobStatus, Store};
 
 #[derive(Debug, Clone)]
@@ -105,6 +106,7 @@ pub struct JobSystem {
     shutdown: CancellationToken,
     tracker: TaskTracker,
     metrics: Arc<Metrics>,
+    storage: Arc<Storage>,
     cfg: WorkerConfig,
     /// Slots of the scenes indexed at the same time, and how many wait for one.
     indexing: Arc<tokio::sync::Semaphore>,
@@ -118,6 +120,7 @@ impl JobSystem {
         store: Store,
         grounder: Arc<dyn Grounder>,
         metrics: Arc<Metrics>,
+        storage: Arc<Storage>,
         cfg: WorkerConfig,
     ) -> Self {
         Self {
@@ -136,6 +139,7 @@ impl JobSystem {
                 cfg.max_concurrent_indexing.max(1),
             )),
             indexing_waiting: Arc::new(Default::default()),
+            storage,
             cfg,
         }
     }
@@ -230,12 +234,51 @@ impl JobSystem {
         &self.points
     }
 
+    /// Where scene files and artifacts live.
+    pub fn storage(&self) -> &Arc<Storage> {
+        &self.storage
+    }
+
     pub fn artifact_dir(&self, job_id: &str) -> PathBuf {
-        self.cfg.data_dir.join("artifacts").join(job_id)
+        self.storage.artifact_dir(job_id)
     }
 
     pub fn scene_dir(&self, scene_id: &str) -> PathBuf {
-        self.cfg.data_dir.join("scenes").join(scene_id)
+        self.storage.scene_dir(scene_id)
+    }
+
+    /// The scene's files in its local folder (fetched from the bucket when not), kept
+    /// there while the pin lives.
+    pub async fn acquire_scene(&self, scene_id: &str) -> Result<ScenePin, JobFailure> {
+        if self.storage.remote_url().is_none() {
+            return self
+                .storage
+                .acquire_scene(scene_id, 0)
+                .await
+                .map_err(|e| JobFailure::new("storage_error", e.to_string()));
+        }
+        let revision = match self.store.get_scene(scene_id).await {
+            Ok(Some(s)) => s.revision,
+            Ok(None) => {
+                return Err(JobFailure::new(
+                    "scene_not_found",
+                    format!("scene {scene_id} no longer exists"),
+                ))
+            }
+            Err(e) => return Err(JobFailure::new("storage_error", e.to_string())),
+        };
+        match self.storage.acquire_scene(scene_id, revision).await {
+            Ok(pin) => Ok(pin),
+            Err(e) => {
+                tracing::error!(scene = %scene_id, "cannot fetch the scene's files: {e}");
+                Err(JobFailure::new(
+                    "storage_error",
+                    format!(
+                        "the files of scene {scene_id} cannot be fetched from the object store"
+                    ),
+                ))
+            }
+        }
     }
 
     async fn worker_loop(self, n: usize) {
@@ -299,18 +342,19 @@ impl JobSystem {
         // the job's own task is stopped and its entry goes; the watchdog fails the row.
         let mut live = super::watchdog::LiveJob::new(&self.running, &job.id);
         tracing::info!(job = %job.id, attempt = job.attempts, "job started");
-        let outcome = match self.load_scene(&job.scene_id).await {
-            Ok(scene) => {
+        // The scene's files stay in the local cache while the job runs.
+        let loaded = match self.acquire_scene(&job.scene_id).await {
+            Ok(pin) => self.load_scene(&job.scene_id).await.map(|s| (s, pin)),
+            Err(e) => Err(e),
+        };
+        let outcome = match loaded {
+            Ok((scene, _pin)) => {
                 let ctx = JobContext {
                     job_id: job.id.clone(),
                     query: job.query.clone(),
                     scene,
                     store: self.store.clone(),
-                    trace: TraceSink::new(
-                        self.store.clone(),
-                        job.id.clone(),
-                        self.artifact_dir(&job.id),
-                    ),
+                    trace: TraceSink::new(self.store.clone(), job.id.clone(), self.storage.clone()),
                     cancel: token.clone(),
                 };
                 // Each job runs in a task of its own: a panic in the pipeline ends this

@@ -36,8 +36,15 @@ impl TestApp {
     }
 
     pub async fn spawn_with(cfg: Config) -> TestApp {
+        Self::spawn_with_env(cfg, &grounder::config::load::process_env()).await
+    }
+
+    /// A server whose outside settings (`AWS_*`) come from `env`, not the process's.
+    pub async fn spawn_with_env(cfg: Config, env: &[(String, String)]) -> TestApp {
         let data_dir = cfg.data_dir.clone();
-        let app = Application::build(cfg).await.expect("build app");
+        let app = Application::build_with_env(cfg, env)
+            .await
+            .expect("build app");
         let addr = app.local_addr().expect("addr");
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
         let handle = tokio::spawn(async move {

@@ -25,6 +25,7 @@ mod polling;
 mod problems;
 mod restart;
 mod scenes;
+mod storage;
 mod viewer;
 mod webhooks;
 
