@@ -28,7 +28,7 @@ fn anonymous_allowed(addr: &SocketAddr, allow_anonymous: bool) -> bool {
 impl Application {
     /// Open the store, recover interrupted jobs, bind the listener, start the workers.
     pub async fn build(cfg: Config) -> anyhow::Result<Self> {
-        let store = Store::open(&cfg.data_dir).await?;
+        let store = Store::open_config(&cfg).await?;
         let (requeued, failed) = store.recover_jobs(cfg.max_attempts).await?;
         if requeued + failed > 0 {
             tracing::info!(

@@ -72,13 +72,14 @@ impl Store {
         job_id: &str,
         after: i64,
     ) -> Result<Vec<JobEvent>, StoreError> {
-        let rows = sqlx::query(
-            "SELECT id, kind, data FROM job_events WHERE job_id = ? AND id > ? ORDER BY id",
-        )
-        .bind(job_id)
-        .bind(after)
-        .fetch_all(&self.pool)
-        .await?;
+        let rows =
+            sqlx::query(&self.sql(
+                "SELECT id, kind, data FROM job_events WHERE job_id = ? AND id > ? ORDER BY id",
+            ))
+            .bind(job_id)
+            .bind(after)
+            .fetch_all(&self.pool)
+            .await?;
         rows.iter()
             .map(|r| {
                 let data: String = r.try_get("data")?;
