@@ -37,12 +37,16 @@ impl Application {
                 "recovered jobs interrupted by the previous process"
             );
         }
-        // No request of the previous process is still in flight.
-        store.idempotency_release_in_flight().await?;
-        // Leftovers of uploads, imports and deletes interrupted by a crash.
-        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir).await?;
-        if !swept.is_empty() {
-            tracing::info!(?swept, "cleaned up after the previous process");
+        // One process per SQLite database: no request of the previous process is still in
+        // flight, and leftovers of uploads, imports and deletes interrupted by a crash are
+        // its own. On PostgreSQL other replicas may be mid-request or mid-import right now
+        // (see docs/scale-out.md).
+        if !store.pg() {
+            store.idempotency_release_in_flight().await?;
+            let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir).await?;
+            if !swept.is_empty() {
+                tracing::info!(?swept, "cleaned up after the previous process");
+            }
         }
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
@@ -56,6 +60,7 @@ impl Application {
                 scene_cache_bytes: cfg.scene_cache_mb << 20,
                 max_memory_mb: cfg.max_memory_mb,
                 job_memory_mb: cfg.job_memory_mb,
+                max_attempts: cfg.max_attempts,
                 ..WorkerConfig::new(cfg.workers, cfg.data_dir.clone())
             },
         );
@@ -102,13 +107,21 @@ impl Application {
             detector_needs_instances: needs_instances,
             auth: Arc::new(api::auth::Auth::new(anonymous)),
         };
-        crate::jobs::indexing::resume(
-            &state.store,
-            &state.on_scene_stored,
-            state.cfg.max_index_attempts,
-        )
-        .await?;
-        state.jobs.start();
+        // Scenes are indexed by the replica that stored them (roles all and api), so
+        // only those resume indexing; workers claim jobs (roles all and worker).
+        let role = state.cfg.role;
+        if role.serves_api() {
+            crate::jobs::indexing::resume(
+                &state.store,
+                &state.on_scene_stored,
+                state.cfg.max_index_attempts,
+            )
+            .await?;
+        }
+        if role.runs_workers() {
+            state.jobs.start();
+        }
+        tracing::info!(?role, backend = ?state.store.backend, "service built");
         Ok(Self { listener, state })
     }
 
@@ -129,7 +142,11 @@ impl Application {
         )?;
         let hooks = tokio::spawn(dispatcher.run(hooks_stop.clone()));
         let closing = self.state.store.events.closing.clone();
-        let app = api::router(self.state);
+        let app = if self.state.cfg.role.serves_api() {
+            api::router(self.state)
+        } else {
+            api::health_router(self.state)
+        };
         let served = axum::serve(self.listener, app)
             .with_graceful_shutdown(async move {
                 shutdown.await;

@@ -24,6 +24,8 @@ pub struct WorkerConfig {
     pub max_memory_mb: u64,
     /// Memory one running job is counted for, in MB.
     pub job_memory_mb: u64,
+    /// Attempts before a job whose lease keeps running out fails (PostgreSQL).
+    pub max_attempts: i64,
 }
 
 impl WorkerConfig {
@@ -34,6 +36,7 @@ impl WorkerConfig {
             scene_cache_bytes: super::scene_cache::DEFAULT_SCENE_CACHE_MB << 20,
             max_memory_mb: 0,
             job_memory_mb: DEFAULT_JOB_MEMORY_MB,
+            max_attempts: 3,
         }
     }
 }
@@ -130,6 +133,13 @@ impl JobSystem {
             let me = self.clone();
             self.tracker.spawn(async move { me.worker_loop(n).await });
         }
+        if self.store.pg() {
+            let (store, wake, stop) =
+                (self.store.clone(), self.wake.clone(), self.shutdown.clone());
+            let max_attempts = self.cfg.max_attempts;
+            self.tracker
+                .spawn(super::lease::sweep(store, max_attempts, wake, stop));
+        }
     }
 
     /// A job was queued or a scene became ready: wake the workers.
@@ -222,6 +232,7 @@ impl JobSystem {
         let started = Instant::now();
         let token = self.shutdown.child_token();
         self.running.insert(&job.id, token.clone());
+        let lease = super::lease::keep(self.store.clone(), job.id.clone(), token.clone());
         tracing::info!(job = %job.id, attempt = job.attempts, "job started");
         let outcome = match self.load_scene(&job.scene_id).await {
             Ok(scene) => {
@@ -262,6 +273,9 @@ impl JobSystem {
             Err(e) => Err(e),
         };
         self.running.remove(&job.id);
+        if let Some(lease) = lease {
+            lease.abort();
+        }
         let outcome_label;
         if self.shutdown.is_cancelled() && token.is_cancelled() {
             // Interrupted by shutdown (not by the user): leave it resumable.

@@ -96,7 +96,7 @@ fn parse_json(s: Option<String>) -> Option<Value> {
     s.and_then(|t| serde_json::from_str(&t).ok())
 }
 
-fn job_from_row(r: &sqlx::any::AnyRow) -> Result<JobRecord, StoreError> {
+pub(super) fn job_from_row(r: &sqlx::any::AnyRow) -> Result<JobRecord, StoreError> {
     let status: String = r.try_get("status")?;
     Ok(JobRecord {
         seq: r.try_get("seq")?,
@@ -116,7 +116,7 @@ fn job_from_row(r: &sqlx::any::AnyRow) -> Result<JobRecord, StoreError> {
     })
 }
 
-const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result, owner, webhook_url";
+pub(super) const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result, owner, webhook_url";
 
 impl Store {
     pub async fn create_job(
@@ -208,61 +208,6 @@ impl Store {
         rows.iter().map(job_from_row).collect()
     }
 
-    /// Atomically take the oldest queued job whose scene is ready; marks it running,
-    /// counts the attempt and clears any trace of an earlier attempt.
-    pub async fn claim_next_job(&self) -> Result<Option<JobRecord>, StoreError> {
-        let r = self.claim_next_job_tx().await;
-        self.job_cache.invalidate();
-        if let Ok(Some(j)) = &r {
-            self.events.changed(&j.id);
-        }
-        r
-    }
-
-    async fn claim_next_job_tx(&self) -> Result<Option<JobRecord>, StoreError> {
-        let mut tx = self.pool.begin().await?;
-        let row = sqlx::query(&self.sql(format!(
-            "UPDATE jobs SET status = 'running', attempts = attempts + 1, started_at = ?1 \
-             WHERE seq = (SELECT j.seq FROM jobs j JOIN scenes s ON s.id = j.scene_id \
-                          WHERE j.status = 'queued' AND s.status = 'ready' ORDER BY j.seq LIMIT 1) \
-             RETURNING {JOB_COLS}"
-        )))
-        .bind(now_rfc3339())
-        .fetch_optional(&mut *tx)
-        .await?;
-        let Some(row) = row else {
-            tx.commit().await?;
-            return Ok(None);
-        };
-        let job = job_from_row(&row)?;
-        sqlx::query(&self.sql("DELETE FROM job_trace WHERE job_id = ?"))
-            .bind(&job.id)
-            .execute(&mut *tx)
-            .await?;
-        tx.commit().await?;
-        Ok(Some(job))
-    }
-
-    /// Finish a running job; only a job still `running` is changed (a cancel wins).
-    pub async fn finish_job(
-        &self,
-        id: &str,
-        status: JobStatus,
-        result: Option<&Value>,
-        error: Option<&Value>,
-    ) -> Result<bool, StoreError> {
-        let r = sqlx::query(&self.sql("UPDATE jobs SET status = ?, result = ?, error = ?, finished_at = ? WHERE id = ? AND status = 'running'"))
-            .bind(status.as_str())
-            .bind(result.map(|v| v.to_string()))
-            .bind(error.map(|v| v.to_string()))
-            .bind(now_rfc3339())
-            .bind(id)
-            .execute(&self.pool)
-            .await;
-        self.job_written(id);
-        Ok(r?.rows_affected() == 1)
-    }
-
     /// Fail every queued job on a scene that failed indexing, with kind `scene_failed` and
     /// the scene's reason. Returns how many were failed.
     pub async fn fail_queued_jobs_of_failed_scenes(&self) -> Result<u64, StoreError> {
@@ -277,17 +222,6 @@ impl Store {
         Ok(r?.rows_affected())
     }
 
-    /// Put a running job back in the queue (process shutting down); the attempt is not counted.
-    pub async fn requeue_job(&self, id: &str) -> Result<(), StoreError> {
-        let r = sqlx::query(&self.sql(format!("UPDATE jobs SET status = 'queued', attempts = {}(attempts - 1, 0), started_at = NULL WHERE id = ? AND status = 'running'", self.greatest())))
-            .bind(id)
-            .execute(&self.pool)
-            .await;
-        self.job_written(id);
-        r?;
-        Ok(())
-    }
-
     /// Cancel a job in any non-terminal state. Returns the job after the change, or None
     /// when it does not exist.
     pub async fn cancel_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
@@ -300,34 +234,6 @@ impl Store {
         self.job_written(id);
         r?;
         self.get_job(id).await
-    }
-
-    /// At start-up: jobs left `running` by a dead process go back to the queue, or fail
-    /// when they have used `max_attempts`. Returns (requeued, failed).
-    pub async fn recover_jobs(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
-        let r = self.recover_jobs_sql(max_attempts).await;
-        self.job_cache.invalidate();
-        self.events.changed_all();
-        r
-    }
-
-    async fn recover_jobs_sql(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
-        let failed = sqlx::query(&self.sql("UPDATE jobs SET status = 'failed', finished_at = ?, \
-             error = json_object('code','too_many_attempts','detail', 'the job was interrupted ' || attempts || ' times while running and was given up') \
-             WHERE status = 'running' AND attempts >= ?"))
-        .bind(now_rfc3339())
-        .bind(max_attempts)
-        .execute(&self.pool)
-        .await?
-        .rows_affected();
-        let requeued =
-            sqlx::query(&self.sql(
-                "UPDATE jobs SET status = 'queued', started_at = NULL WHERE status = 'running'",
-            ))
-            .execute(&self.pool)
-            .await?
-            .rows_affected();
-        Ok((requeued, failed))
     }
 
     pub async fn count_jobs_by_status(&self) -> Result<Vec<(String, i64)>, StoreError> {

@@ -10,6 +10,8 @@ pub mod idempotency;
 pub mod jobs;
 pub mod keys;
 pub mod lifecycle;
+pub mod notify;
+pub mod queue;
 pub mod scenes;
 pub mod webhooks;
 
@@ -32,6 +34,10 @@ pub struct Store {
     pub pool: AnyPool,
     /// Which database `pool` talks to.
     pub backend: Backend,
+    /// This process's id as a lease holder (PostgreSQL), unique per opened store.
+    pub replica: std::sync::Arc<String>,
+    /// How long a claimed job's lease lasts, ms (see [`queue`]).
+    lease_ms: i64,
     /// Polled jobs, valid until the next job write (see [`cache`]).
     pub(crate) job_cache: std::sync::Arc<cache::JobCache>,
     /// Wakes whoever waits on a job's changes (long polls, event streams).
@@ -59,6 +65,7 @@ impl Store {
             Some(url) => Self::connect(url, &cfg.data_dir).await,
             None => Self::open(&cfg.data_dir).await,
         }
+        .map(|s| s.with_lease_seconds(cfg.lease_seconds))
     }
 
     /// Open the database `url` names (`sqlite://...` or `postgres://...`) and run its
@@ -90,13 +97,15 @@ impl Store {
             .acquire_timeout(Duration::from_secs(15))
             .after_connect(move |conn, _| {
                 Box::pin(async move {
-                    if backend == Backend::Sqlite {
-                        conn.execute(
+                    match backend {
+                        Backend::Sqlite => conn.execute(
                             "PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL; \
                              PRAGMA foreign_keys = ON; PRAGMA busy_timeout = 10000;",
-                        )
-                        .await?;
+                        ),
+                        // Notices ("already exists, skipping") are not worth a log line.
+                        Backend::Postgres => conn.execute("SET client_min_messages TO warning"),
                     }
+                    .await?;
                     Ok(())
                 })
             })
@@ -108,12 +117,29 @@ impl Store {
             Backend::Postgres => sqlx::migrate!("./migrations/postgres").run(&pool).await,
         };
         migrated.map_err(|e| anyhow::anyhow!("database migration failed: {e}"))?;
-        Ok(Self {
+        let store = Self {
             pool,
             backend,
+            replica: std::sync::Arc::new(uuid::Uuid::now_v7().to_string()),
+            lease_ms: 30_000,
             job_cache: Default::default(),
             events: Default::default(),
-        })
+        };
+        if backend == Backend::Postgres {
+            notify::start(url, &store.events, &store.job_cache).await?;
+        }
+        Ok(store)
+    }
+
+    /// The same store with leases of `secs` seconds (at least one).
+    pub fn with_lease_seconds(mut self, secs: u64) -> Self {
+        self.lease_ms = (secs.clamp(1, 86_400) * 1000) as i64;
+        self
+    }
+
+    /// How long a lease lasts, ms.
+    pub fn lease_ms(&self) -> i64 {
+        self.lease_ms
     }
 
     /// `sql` (written with SQLite's `?` placeholders) in this store's dialect.
