@@ -12,22 +12,6 @@ const JOBS: usize = 60;
 const LEASE_S: u64 = 3;
 const JOB_MS: u64 = 300;
 
-async fn running_on(c: &reqwest::Client, base: &str, ids: &[String]) -> usize {
-    let mut n = 0;
-    for id in ids {
-        let j: Value = c
-            .get(format!("{base}/v1/jobs/{id}"))
-            .send()
-            .await
-            .expect("get")
-            .json()
-            .await
-            .expect("json");
-        n += (j["status"] == "running") as usize;
-    }
-    n
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
     let Some(server) = pg::server() else {
@@ -82,11 +66,26 @@ async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
         );
     }
 
-    // Kill replica 1 while it runs a job (its lease must run out before another takes it).
+    // Kill replica 1 while it runs a job: once all three replicas hold leases.
+    let store = grounder::store::Store::connect(&url, dir.path())
+        .await
+        .unwrap();
     let t = Instant::now();
-    while running_on(&c, &replicas[0].base, &ids).await < 3 {
-        assert!(t.elapsed() < Duration::from_secs(15), "jobs never ran");
-        tokio::time::sleep(Duration::from_millis(50)).await;
+    loop {
+        let holders: i64 = sqlx::query_scalar(
+            "SELECT COUNT(DISTINCT lease_owner) FROM jobs WHERE status = 'running'",
+        )
+        .fetch_one(&store.pool)
+        .await
+        .unwrap();
+        if holders == 3 {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "three replicas never ran jobs at once"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
     }
     signal(&mut replicas[1].child, "-KILL");
     let killed_at = Instant::now();
