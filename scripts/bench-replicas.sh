@@ -31,6 +31,7 @@ if [[ -z "${GROUNDER_BIN:-}" ]]; then
 fi
 
 WORK=$(mktemp -d)
+chmod 755 "$WORK"   # the postgres user must reach its cluster inside
 PIDS=()
 AS_PG=()
 [[ $(id -u) == 0 ]] && AS_PG=(runuser -u postgres --)
