@@ -1,8 +1,9 @@
 //! The shared API tests on PostgreSQL: this test binary runs again with
 //! TEST_POSTGRES_SERVER set, so that `helpers::test_config` gives every test server a
-//! database of its own on a throwaway cluster (see `pg.rs`), and only the job lifecycle (7 tests),
-//! scenes (3), idempotency (2), keys (5) and events (1) tests are selected. They are the same tests that
-//! run on SQLite in this binary's ordinary run.
+//! database of its own on a throwaway cluster (see `pg.rs`), selecting the job lifecycle
+//! (7 tests), scenes (3), idempotency (2), keys (5), events (1), frames (1), webhooks (2),
+//! polling (3), problems (1), internal errors (1) and formats (3) tests: 29, the same tests
+//! that run on SQLite in this binary's ordinary run.
 
 use std::process::Command;
 
@@ -16,7 +17,21 @@ fn the_shared_api_tests_pass_on_postgres() {
     };
     let exe = std::env::current_exe().expect("test binary");
     let out = Command::new(exe)
-        .args(["jobs::", "scenes::", "idempotency::", "keys::", "events::"])
+        .args([
+            "jobs::",
+            "scenes::",
+            "idempotency::",
+            "keys::",
+            "events::",
+            "frames::",
+        ])
+        .args([
+            "webhooks::",
+            "polling::",
+            "problems::",
+            "internal_errors::",
+            "formats::",
+        ])
         .args(["--skip", "postgres::", "--test-threads=2"])
         .env(crate::helpers::pg::SERVER_ENV, &server)
         .output()
@@ -34,7 +49,7 @@ fn the_shared_api_tests_pass_on_postgres() {
         .sum();
     eprintln!("{passed} shared tests passed on PostgreSQL");
     assert!(
-        passed >= 18,
+        passed >= 29,
         "too few tests ran on PostgreSQL ({passed}):\n{stdout}"
     );
 }
