@@ -20,6 +20,9 @@ pub struct Hub {
     jobs: Mutex<HashMap<String, watch::Sender<u64>>>,
     /// Cancelled when the server begins to shut down: streams end so it can.
     pub closing: tokio_util::sync::CancellationToken,
+    /// Woken by every change another replica made (PostgreSQL notifications): idle
+    /// workers look at the queue again, so a job created elsewhere starts at once.
+    pub remote: tokio::sync::Notify,
 }
 
 impl Hub {

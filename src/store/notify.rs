@@ -41,12 +41,14 @@ async fn run(mut listener: PgListener, hub: Weak<Hub>, cache: Weak<JobCache>) {
             Ok(Ok(Some(n))) => {
                 cache.invalidate();
                 hub.changed(n.payload());
+                hub.remote.notify_waiters();
             }
             // The connection was lost (and is reopened by the next call): whatever changed
             // meanwhile was not heard, so everyone looks again.
             Ok(Ok(None)) => {
                 cache.invalidate();
                 hub.changed_all();
+                hub.remote.notify_waiters();
             }
             Ok(Err(e)) => {
                 tracing::warn!("job change notifications: {e}; listening again");
