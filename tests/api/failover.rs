@@ -149,3 +149,19 @@ async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
         started.elapsed()
     );
 }
+
+#[tokio::test]
+async fn a_worker_replica_answers_only_its_health_endpoints() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start_server(dir.path(), &[("GROUNDER_ROLE", "worker")]);
+    let c = reqwest::Client::new();
+    let r = c.get(format!("{}/healthz", s.base)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let r = c.get(format!("{}/v1/scenes", s.base)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 404);
+    let p: Value = r.json().await.unwrap();
+    assert!(
+        p["detail"].as_str().unwrap_or("").contains("--role worker"),
+        "{p}"
+    );
+}
