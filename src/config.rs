@@ -22,10 +22,37 @@ pub struct ServeArgs {
     /// Optional TOML configuration file (keys as in `Config`).
     #[arg(long, env = "GROUNDER_CONFIG")]
     pub config: Option<PathBuf>,
+    /// What to run: api, worker or all (also GROUNDER_ROLE).
+    #[arg(long, value_enum)]
+    pub role: Option<Role>,
     /// Serve without API keys on a non-loopback address (anyone reaching the port sees
     /// everything). Also GROUNDER_ALLOW_ANONYMOUS=1.
     #[arg(long)]
     pub allow_anonymous: bool,
+}
+
+/// Which parts of the service a `serve` process runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// The HTTP API and the workers (one process does everything).
+    All,
+    /// The HTTP API only: jobs and scene indexing are left to worker replicas.
+    Api,
+    /// Workers only (jobs and indexing); HTTP answers the health endpoints alone.
+    Worker,
+}
+
+impl Role {
+    /// True when this process claims jobs and indexes scenes.
+    pub fn runs_workers(self) -> bool {
+        self != Role::Api
+    }
+
+    /// True when this process serves the full API.
+    pub fn serves_api(self) -> bool {
+        self != Role::Worker
+    }
 }
 
 /// Everything the service can be configured with.
@@ -43,6 +70,16 @@ pub struct Config {
     pub storage: String,
     /// Bound of the local cache of scenes downloaded from an `s3://` storage, MB.
     pub storage_cache_mb: u64,
+    /// The database: `sqlite://PATH` or `postgres://USER:PASSWORD@HOST:PORT/DB` (unset:
+    /// `grounder.db` in `data_dir`). Replicas that share a PostgreSQL database share one
+    /// queue; they must also share `data_dir` (one volume).
+    pub database_url: Option<String>,
+    /// What `serve` runs: "all" (API and workers), "api" (no workers) or "worker" (claims
+    /// jobs and indexes scenes; answers only the health endpoints).
+    pub role: Role,
+    /// Seconds a running job's lease lasts (PostgreSQL). Its worker renews it; a job whose
+    /// lease ran out (its replica died) is queued again by any replica, as an attempt.
+    pub lease_seconds: u64,
     /// Largest accepted upload body in bytes (413 above).
     pub max_upload_bytes: u64,
     /// Largest total unpacked size of an archive in bytes.
@@ -123,6 +160,9 @@ impl Default for Config {
             data_dir: PathBuf::from("./data"),
             storage: String::new(),
             storage_cache_mb: crate::storage::DEFAULT_CACHE_MB,
+            database_url: None,
+            role: Role::All,
+            lease_seconds: 30,
             max_upload_bytes: 2 << 30,
             max_unpacked_bytes: 8 << 30,
             max_archive_files: 200_000,
@@ -183,6 +223,7 @@ impl Config {
             flags: load::Flags {
                 addr: args.addr.clone(),
                 data_dir: args.data_dir.clone(),
+                role: args.role,
                 allow_anonymous: args.allow_anonymous,
             },
         })

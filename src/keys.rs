@@ -61,9 +61,10 @@ pub async fn run(args: KeysArgs) -> anyhow::Result<()> {
         addr: None,
         data_dir: args.data_dir.clone(),
         config: args.config.clone(),
+        role: None,
         allow_anonymous: false,
     })?;
-    let store = Store::open(&cfg.data_dir).await?;
+    let store = Store::open_config(&cfg).await?;
     match args.command {
         KeysCommand::Create {
             name,

@@ -34,7 +34,7 @@ impl Application {
     /// [`Self::build`] with `env` in place of the process environment for the settings
     /// read from outside the configuration (the `AWS_*` variables of an `s3://` storage).
     pub async fn build_with_env(cfg: Config, env: &[(String, String)]) -> anyhow::Result<Self> {
-        let store = Store::open(&cfg.data_dir).await?;
+        let store = Store::open_config(&cfg).await?;
         let (requeued, failed) = store.recover_jobs(cfg.max_attempts).await?;
         if requeued + failed > 0 {
             tracing::info!(
@@ -43,8 +43,6 @@ impl Application {
                 "recovered jobs interrupted by the previous process"
             );
         }
-        // No request of the previous process is still in flight.
-        store.idempotency_release_in_flight().await?;
         let storage = crate::storage::Storage::open(
             &cfg.storage,
             &cfg.data_dir,
@@ -59,10 +57,16 @@ impl Application {
                 "scene files and artifacts live in {url}"
             );
         }
-        // Leftovers of uploads, imports and deletes interrupted by a crash.
-        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir, &storage).await?;
-        if !swept.is_empty() {
-            tracing::info!(?swept, "cleaned up after the previous process");
+        // One process per SQLite database: no request of the previous process is still in
+        // flight, and leftovers of uploads, imports and deletes interrupted by a crash are
+        // its own. On PostgreSQL other replicas may be mid-request or mid-import right now
+        // (see docs/scale-out.md).
+        if !store.pg() {
+            store.idempotency_release_in_flight().await?;
+            let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir, &storage).await?;
+            if !swept.is_empty() {
+                tracing::info!(?swept, "cleaned up after the previous process");
+            }
         }
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
@@ -83,6 +87,7 @@ impl Application {
                         (cfg.job_retention_days * 86_400.0).min(1e12),
                     )
                 }),
+                max_attempts: cfg.max_attempts,
                 ..WorkerConfig::new(cfg.workers, cfg.data_dir.clone())
             },
         );
@@ -133,13 +138,21 @@ impl Application {
             auth: Arc::new(api::auth::Auth::new(anonymous)),
             uploads,
         };
-        crate::jobs::indexing::resume(
-            &state.store,
-            &state.on_scene_stored,
-            state.cfg.max_index_attempts,
-        )
-        .await?;
-        state.jobs.start();
+        // Scenes are indexed by the replica that stored them (roles all and api), so
+        // only those resume indexing; workers claim jobs (roles all and worker).
+        let role = state.cfg.role;
+        if role.serves_api() {
+            crate::jobs::indexing::resume(
+                &state.store,
+                &state.on_scene_stored,
+                state.cfg.max_index_attempts,
+            )
+            .await?;
+        }
+        if role.runs_workers() {
+            state.jobs.start();
+        }
+        tracing::info!(?role, backend = ?state.store.backend, "service built");
         Ok(Self { listener, state })
     }
 
@@ -165,7 +178,11 @@ impl Application {
         )?;
         let hooks = tokio::spawn(dispatcher.run(hooks_stop.clone()));
         let closing = self.state.store.events.closing.clone();
-        let app = api::router(self.state);
+        let app = if self.state.cfg.role.serves_api() {
+            api::router(self.state)
+        } else {
+            api::health_router(self.state)
+        };
         let served = axum::serve(self.listener, app)
             .with_graceful_shutdown(async move {
                 shutdown.await;

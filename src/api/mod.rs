@@ -103,6 +103,29 @@ pub fn router(state: AppState) -> Router {
         .with_state(state)
 }
 
+/// The routes of a `--role worker` process: health, readiness and metrics only (the API
+/// is served by other replicas; anything else is a 404 problem naming the role).
+pub fn health_router(state: AppState) -> Router {
+    Router::new()
+        .route("/healthz", get(health::healthz))
+        .route("/readyz", get(health::readyz))
+        .route("/metrics", get(health::metrics))
+        .fallback(worker_fallback)
+        .with_state(state)
+}
+
+async fn worker_fallback(req: Request) -> ApiError {
+    ApiError::new(
+        axum::http::StatusCode::NOT_FOUND,
+        "route_not_found",
+        format!(
+            "no route for {} {}: this replica runs --role worker (health endpoints only)",
+            req.method(),
+            req.uri().path()
+        ),
+    )
+}
+
 async fn fallback(req: Request) -> ApiError {
     ApiError::new(
         axum::http::StatusCode::NOT_FOUND,

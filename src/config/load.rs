@@ -57,6 +57,7 @@ impl std::error::Error for ConfigError {}
 pub struct Flags {
     pub addr: Option<String>,
     pub data_dir: Option<PathBuf>,
+    pub role: Option<super::Role>,
     pub allow_anonymous: bool,
 }
 
@@ -160,6 +161,14 @@ impl Sources<'_> {
         }
         if let Some(p) = &self.flags.data_dir {
             d.insert("data_dir".into(), Value::from(p.display().to_string()));
+        }
+        if let Some(r) = self.flags.role {
+            let name = match r {
+                super::Role::All => "all",
+                super::Role::Api => "api",
+                super::Role::Worker => "worker",
+            };
+            d.insert("role".into(), Value::from(name));
         }
         if self.flags.allow_anonymous {
             d.insert("allow_anonymous".into(), Value::from(true));

@@ -7,6 +7,7 @@ pub const HIDDEN: &str = "***";
 
 /// Keys that may be left unset; printed as comments so that every key is listed.
 pub const OPTIONAL_KEYS: &[(&str, &str)] = &[
+    ("database_url", "sqlite:// grounder.db in data_dir"),
     ("model_dir", "./models"),
     ("ort_dylib", "ORT_DYLIB_PATH, else ./.ort/"),
     ("prompts_dir", "the built-in prompts"),
@@ -18,6 +19,9 @@ pub fn to_toml(cfg: &Config) -> anyhow::Result<String> {
     let key_set = cfg.vlm.as_ref().is_some_and(|v| !v.api_key.is_empty());
     if cfg.vlm.is_none() {
         cfg.vlm = Some(crate::vlm::VlmConfig::default());
+    }
+    if let Some(url) = &cfg.database_url {
+        cfg.database_url = Some(crate::store::redact(url));
     }
     let mut value = toml::Value::try_from(&cfg)?;
     tidy_floats(&mut value);

@@ -64,6 +64,7 @@ pub async fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
                 addr: Some("127.0.0.1:0".into()),
                 data_dir: None,
                 config: None,
+                role: None,
                 allow_anonymous: false,
             })?;
             cfg.addr = "127.0.0.1:0".into();

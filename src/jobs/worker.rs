@@ -29,6 +29,8 @@ pub struct WorkerConfig {
     pub max_concurrent_indexing: usize,
     /// How long finished jobs and their artifacts are kept (None: for ever).
     pub job_retention: Option<Duration>,
+    /// Attempts before a job whose lease keeps running out fails (PostgreSQL).
+    pub max_attempts: i64,
 }
 
 impl WorkerConfig {
@@ -41,6 +43,7 @@ impl WorkerConfig {
             job_memory_mb: DEFAULT_JOB_MEMORY_MB,
             max_concurrent_indexing: 2,
             job_retention: None,
+            max_attempts: 3,
         }
     }
 }
@@ -162,6 +165,13 @@ impl JobSystem {
             let me = self.clone();
             self.tracker
                 .spawn(async move { super::retention::run(me, keep).await });
+        }
+        if self.store.pg() {
+            let (store, wake, stop) =
+                (self.store.clone(), self.wake.clone(), self.shutdown.clone());
+            let max_attempts = self.cfg.max_attempts;
+            self.tracker
+                .spawn(super::lease::sweep(store, max_attempts, wake, stop));
         }
     }
 
@@ -306,6 +316,7 @@ impl JobSystem {
             tokio::select! {
                 _ = self.shutdown.cancelled() => break,
                 _ = self.wake.notified() => {}
+                _ = self.store.events.remote.notified() => {}
                 _ = tokio::time::sleep(Duration::from_millis(500)) => {}
             }
         }
@@ -341,6 +352,13 @@ impl JobSystem {
         // Should this worker's task end half-way (a crash of the worker, the test hook),
         // the job's own task is stopped and its entry goes; the watchdog fails the row.
         let mut live = super::watchdog::LiveJob::new(&self.running, &job.id);
+        // On PostgreSQL the job holds a lease renewed until this guard drops (also when
+        // the worker task ends half-way).
+        let lease = AbortOnDrop(super::lease::keep(
+            self.store.clone(),
+            job.id.clone(),
+            token.clone(),
+        ));
         tracing::info!(job = %job.id, attempt = job.attempts, "job started");
         // The scene's files stay in the local cache while the job runs.
         let loaded = match self.acquire_scene(&job.scene_id).await {
@@ -383,6 +401,7 @@ impl JobSystem {
             }
             Err(e) => Err(e),
         };
+        drop(lease);
         let outcome_label;
         if self.shutdown.is_cancelled() && token.is_cancelled() {
             // Interrupted by shutdown (not by the user): leave it resumable.
@@ -446,4 +465,15 @@ pub fn result_json(out: &GroundingOutput) -> Value {
         }
     }
     v
+}
+
+/// Aborts a background task (a job's lease renewal) when dropped.
+struct AbortOnDrop(Option<tokio::task::JoinHandle<()>>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        if let Some(t) = self.0.take() {
+            t.abort();
+        }
+    }
 }

@@ -20,6 +20,9 @@ pub struct Hub {
     jobs: Mutex<HashMap<String, watch::Sender<u64>>>,
     /// Cancelled when the server begins to shut down: streams end so it can.
     pub closing: tokio_util::sync::CancellationToken,
+    /// Woken by every change another replica made (PostgreSQL notifications): idle
+    /// workers look at the queue again, so a job created elsewhere starts at once.
+    pub remote: tokio::sync::Notify,
 }
 
 impl Hub {
@@ -72,13 +75,14 @@ impl Store {
         job_id: &str,
         after: i64,
     ) -> Result<Vec<JobEvent>, StoreError> {
-        let rows = sqlx::query(
-            "SELECT id, kind, data FROM job_events WHERE job_id = ? AND id > ? ORDER BY id",
-        )
-        .bind(job_id)
-        .bind(after)
-        .fetch_all(&self.pool)
-        .await?;
+        let rows =
+            sqlx::query(&self.sql(
+                "SELECT id, kind, data FROM job_events WHERE job_id = ? AND id > ? ORDER BY id",
+            ))
+            .bind(job_id)
+            .bind(after)
+            .fetch_all(&self.pool)
+            .await?;
         rows.iter()
             .map(|r| {
                 let data: String = r.try_get("data")?;

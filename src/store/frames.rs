@@ -28,7 +28,8 @@ impl Store {
         scene_id: &str,
     ) -> Result<Option<(Intrinsics, Option<Intrinsics>, (u32, u32))>, StoreError> {
         let Some(r) = sqlx::query(
-            "SELECT color_k, depth_k, depth_width, depth_height FROM scenes WHERE id = ?",
+            &self
+                .sql("SELECT color_k, depth_k, depth_width, depth_height FROM scenes WHERE id = ?"),
         )
         .bind(scene_id)
         .fetch_optional(&self.pool)
@@ -51,10 +52,12 @@ impl Store {
     /// The scene's frame names in order.
     pub async fn frame_names(&self, scene_id: &str) -> Result<Vec<String>, StoreError> {
         Ok(
-            sqlx::query_scalar("SELECT name FROM frames WHERE scene_id = ? ORDER BY idx")
-                .bind(scene_id)
-                .fetch_all(&self.pool)
-                .await?,
+            sqlx::query_scalar(
+                &self.sql("SELECT name FROM frames WHERE scene_id = ? ORDER BY idx"),
+            )
+            .bind(scene_id)
+            .fetch_all(&self.pool)
+            .await?,
         )
     }
 
@@ -69,13 +72,14 @@ impl Store {
         detector: Option<&str>,
     ) -> Result<usize, StoreError> {
         let mut tx = self.pool.begin().await?;
-        let count: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM frames WHERE scene_id = ?")
-            .bind(scene_id)
-            .fetch_one(&mut *tx)
-            .await?;
+        let count: i64 =
+            sqlx::query_scalar(&self.sql("SELECT COUNT(*) FROM frames WHERE scene_id = ?"))
+                .bind(scene_id)
+                .fetch_one(&mut *tx)
+                .await?;
         let usable = frames.frames.iter().filter(|f| f.usable).count() as i64;
         for (i, f) in frames.frames.iter().enumerate() {
-            sqlx::query("INSERT INTO frames (scene_id, idx, name, pose, usable, depth, file) VALUES (?,?,?,?,?,?,?)")
+            sqlx::query(&self.sql("INSERT INTO frames (scene_id, idx, name, pose, usable, depth, file) VALUES (?,?,?,?,?,?,?)"))
                 .bind(scene_id)
                 .bind(count + i as i64)
                 .bind(&f.name)
@@ -87,16 +91,14 @@ impl Store {
                 .await?;
         }
         let n = frames.frames.len() as i64;
-        sqlx::query(
-            "UPDATE scenes SET frame_count = frame_count + ?, unusable_count = unusable_count + ?, revision = revision + 1 WHERE id = ?",
-        )
+        sqlx::query(&self.sql("UPDATE scenes SET frame_count = frame_count + ?, unusable_count = unusable_count + ?, revision = revision + 1 WHERE id = ?"))
         .bind(n)
         .bind(n - usable)
         .bind(scene_id)
         .execute(&mut *tx)
         .await?;
         if let (Some(d), true) = (detector, usable > 0) {
-            sqlx::query("UPDATE scenes SET status = 'indexing', index_detector = ?, index_total = index_total + ?, error = NULL WHERE id = ?")
+            sqlx::query(&self.sql("UPDATE scenes SET status = 'indexing', index_detector = ?, index_total = index_total + ?, error = NULL WHERE id = ?"))
                 .bind(d)
                 .bind(usable)
                 .bind(scene_id)
@@ -116,7 +118,7 @@ impl Store {
     ) -> Result<FrameRemoval, StoreError> {
         let mut tx = self.pool.begin().await?;
         let running: i64 = sqlx::query_scalar(
-            "SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'",
+            &self.sql("SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'"),
         )
         .bind(scene_id)
         .fetch_one(&mut *tx)
@@ -124,16 +126,15 @@ impl Store {
         if running > 0 {
             return Ok(FrameRemoval::Busy("a job on the scene is running"));
         }
-        let status: Option<String> = sqlx::query_scalar("SELECT status FROM scenes WHERE id = ?")
-            .bind(scene_id)
-            .fetch_optional(&mut *tx)
-            .await?;
+        let status: Option<String> =
+            sqlx::query_scalar(&self.sql("SELECT status FROM scenes WHERE id = ?"))
+                .bind(scene_id)
+                .fetch_optional(&mut *tx)
+                .await?;
         if status.as_deref() == Some("indexing") {
             return Ok(FrameRemoval::Busy("the scene is being indexed"));
         }
-        let Some(row) = sqlx::query(
-            "SELECT idx, usable, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? AND name = ?",
-        )
+        let Some(row) = sqlx::query(&self.sql("SELECT idx, usable, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? AND name = ?"))
         .bind(scene_id)
         .bind(name)
         .fetch_optional(&mut *tx)
@@ -144,52 +145,53 @@ impl Store {
         let idx: i64 = row.try_get("idx")?;
         let usable = row.try_get::<i64, _>("usable")? != 0;
         let file: String = row.try_get("file")?;
-        let count: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM frames WHERE scene_id = ?")
-            .bind(scene_id)
-            .fetch_one(&mut *tx)
-            .await?;
+        let count: i64 =
+            sqlx::query_scalar(&self.sql("SELECT COUNT(*) FROM frames WHERE scene_id = ?"))
+                .bind(scene_id)
+                .fetch_one(&mut *tx)
+                .await?;
         if count <= 1 {
             return Ok(FrameRemoval::LastFrame);
         }
         // Files keep their stems while image ids move.
         sqlx::query(
-            "UPDATE frames SET file = CAST(idx AS TEXT) WHERE scene_id = ? AND file IS NULL",
+            &self.sql(
+                "UPDATE frames SET file = CAST(idx AS TEXT) WHERE scene_id = ? AND file IS NULL",
+            ),
         )
         .bind(scene_id)
         .execute(&mut *tx)
         .await?;
-        sqlx::query("DELETE FROM frames WHERE scene_id = ? AND idx = ?")
+        sqlx::query(&self.sql("DELETE FROM frames WHERE scene_id = ? AND idx = ?"))
             .bind(scene_id)
             .bind(idx)
             .execute(&mut *tx)
             .await?;
-        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND frame_idx = ?")
+        sqlx::query(&self.sql("DELETE FROM detections WHERE scene_id = ? AND frame_idx = ?"))
             .bind(scene_id)
             .bind(idx)
             .execute(&mut *tx)
             .await?;
         // Two steps, so that no two rows share a key on the way.
-        sqlx::query("UPDATE frames SET idx = -idx WHERE scene_id = ? AND idx > ?")
+        sqlx::query(&self.sql("UPDATE frames SET idx = -idx WHERE scene_id = ? AND idx > ?"))
             .bind(scene_id)
             .bind(idx)
             .execute(&mut *tx)
             .await?;
-        sqlx::query("UPDATE frames SET idx = -idx - 1 WHERE scene_id = ? AND idx < 0")
+        sqlx::query(&self.sql("UPDATE frames SET idx = -idx - 1 WHERE scene_id = ? AND idx < 0"))
             .bind(scene_id)
             .execute(&mut *tx)
             .await?;
-        sqlx::query(
+        sqlx::query(&self.sql(
             "UPDATE detections SET frame_idx = frame_idx - 1 WHERE scene_id = ? AND frame_idx > ?",
-        )
+        ))
         .bind(scene_id)
         .bind(idx)
         .execute(&mut *tx)
         .await?;
         let (u, indexed) = if usable { (0, 1) } else { (1, 0) };
-        sqlx::query(
-            "UPDATE scenes SET frame_count = frame_count - 1, unusable_count = unusable_count - ?, \
-             index_total = MAX(index_total - ?, 0), index_done = MAX(index_done - ?, 0), revision = revision + 1 WHERE id = ?",
-        )
+        sqlx::query(&self.sql(format!("UPDATE scenes SET frame_count = frame_count - 1, unusable_count = unusable_count - ?, \
+             index_total = {max}(index_total - ?, 0), index_done = {max}(index_done - ?, 0), revision = revision + 1 WHERE id = ?", max = self.greatest())))
         .bind(u)
         .bind(if status.is_some() { indexed } else { 0 })
         .bind(if status.is_some() { indexed } else { 0 })

@@ -42,14 +42,12 @@ impl Store {
         body_sha256: &str,
     ) -> Result<Begin, StoreError> {
         let now = now_secs();
-        sqlx::query("DELETE FROM idempotency WHERE created_at < ?")
+        sqlx::query(&self.sql("DELETE FROM idempotency WHERE created_at < ?"))
             .bind(now - KEEP_SECS)
             .execute(&self.pool)
             .await?;
-        let inserted = sqlx::query(
-            "INSERT INTO idempotency (owner, route, key, body_sha256, created_at) VALUES (?,?,?,?,?) \
-             ON CONFLICT DO NOTHING",
-        )
+        let inserted = sqlx::query(&self.sql("INSERT INTO idempotency (owner, route, key, body_sha256, created_at) VALUES (?,?,?,?,?) \
+             ON CONFLICT DO NOTHING"))
         .bind(owner)
         .bind(route)
         .bind(key)
@@ -61,9 +59,7 @@ impl Store {
         if inserted == 1 {
             return Ok(Begin::Proceed);
         }
-        let Some(row) = sqlx::query(
-            "SELECT body_sha256, status, headers, body FROM idempotency WHERE owner = ? AND route = ? AND key = ?",
-        )
+        let Some(row) = sqlx::query(&self.sql("SELECT body_sha256, status, headers, body FROM idempotency WHERE owner = ? AND route = ? AND key = ?"))
         .bind(owner)
         .bind(route)
         .bind(key)
@@ -105,9 +101,7 @@ impl Store {
     ) -> Result<(), StoreError> {
         let headers = serde_json::to_string(&resp.headers)
             .map_err(|e| StoreError::Corrupt(format!("headers: {e}")))?;
-        sqlx::query(
-            "UPDATE idempotency SET status = ?, headers = ?, body = ? WHERE owner = ? AND route = ? AND key = ?",
-        )
+        sqlx::query(&self.sql("UPDATE idempotency SET status = ?, headers = ?, body = ? WHERE owner = ? AND route = ? AND key = ?"))
         .bind(resp.status as i64)
         .bind(headers)
         .bind(&resp.body)
@@ -126,9 +120,9 @@ impl Store {
         route: &str,
         key: &str,
     ) -> Result<(), StoreError> {
-        sqlx::query(
+        sqlx::query(&self.sql(
             "DELETE FROM idempotency WHERE owner = ? AND route = ? AND key = ? AND status IS NULL",
-        )
+        ))
         .bind(owner)
         .bind(route)
         .bind(key)
@@ -139,9 +133,11 @@ impl Store {
 
     /// At start-up: no request of a previous process is still in flight.
     pub async fn idempotency_release_in_flight(&self) -> Result<u64, StoreError> {
-        Ok(sqlx::query("DELETE FROM idempotency WHERE status IS NULL")
-            .execute(&self.pool)
-            .await?
-            .rows_affected())
+        Ok(
+            sqlx::query(&self.sql("DELETE FROM idempotency WHERE status IS NULL"))
+                .execute(&self.pool)
+                .await?
+                .rows_affected(),
+        )
     }
 }

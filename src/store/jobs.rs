@@ -96,7 +96,7 @@ fn parse_json(s: Option<String>) -> Option<Value> {
     s.and_then(|t| serde_json::from_str(&t).ok())
 }
 
-fn job_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<JobRecord, StoreError> {
+pub(super) fn job_from_row(r: &sqlx::any::AnyRow) -> Result<JobRecord, StoreError> {
     let status: String = r.try_get("status")?;
     Ok(JobRecord {
         seq: r.try_get("seq")?,
@@ -116,7 +116,7 @@ fn job_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<JobRecord, StoreError> {
     })
 }
 
-const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result, owner, webhook_url";
+pub(super) const JOB_COLS: &str = "seq, id, scene_id, query, status, attempts, created_at, started_at, finished_at, error, result, owner, webhook_url";
 
 impl Store {
     pub async fn create_job(
@@ -127,7 +127,7 @@ impl Store {
     ) -> Result<JobRecord, StoreError> {
         // RETURNING gives the row as inserted: a worker may claim the job before a second
         // read, and the caller must still see it queued.
-        let r = sqlx::query(&format!("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?) RETURNING {JOB_COLS}"))
+        let r = sqlx::query(&self.sql(format!("INSERT INTO jobs (id, scene_id, query, status, created_at) VALUES (?,?,?,'queued',?) RETURNING {JOB_COLS}")))
             .bind(id)
             .bind(scene_id)
             .bind(query)
@@ -147,10 +147,11 @@ impl Store {
         let values = vec!["(?,?)"; n.jobs.len()].join(",");
         let sql = format!(
             "INSERT INTO jobs (id, scene_id, query, status, created_at, owner, webhook_url) \
-             SELECT column1, ?, column2, 'queued', ?, ?, ? FROM (VALUES {values}) \
-             WHERE ? IS NULL OR (SELECT COUNT(*) FROM jobs WHERE owner IS ? AND status IN ('queued','running')) + ? <= ? \
+             SELECT column1, ?, column2, 'queued', ?, ?, ? FROM (VALUES {values}) AS v \
+             WHERE ? IS NULL OR (SELECT COUNT(*) FROM jobs WHERE owner IS NOT DISTINCT FROM ? AND status IN ('queued','running')) + ? <= ? \
              ORDER BY 1 RETURNING {JOB_COLS}"
         );
+        let sql = self.sql(sql);
         let mut q = sqlx::query(&sql)
             .bind(n.scene_id)
             .bind(now_rfc3339())
@@ -184,7 +185,7 @@ impl Store {
     }
 
     pub async fn get_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        let row = sqlx::query(&format!("SELECT {JOB_COLS} FROM jobs WHERE id = ?"))
+        let row = sqlx::query(&self.sql(format!("SELECT {JOB_COLS} FROM jobs WHERE id = ?")))
             .bind(id)
             .fetch_optional(&self.pool)
             .await?;
@@ -193,10 +194,10 @@ impl Store {
 
     /// Newest first; `before_seq` continues a previous page.
     pub async fn list_jobs(&self, q: &ListJobs) -> Result<Vec<JobRecord>, StoreError> {
-        let rows = sqlx::query(&format!(
+        let rows = sqlx::query(&self.sql(format!(
             "SELECT {JOB_COLS} FROM jobs WHERE (?1 IS NULL OR scene_id = ?1) AND (?2 IS NULL OR status = ?2) \
              AND (?3 IS NULL OR seq < ?3) AND (?5 IS NULL OR owner = ?5) ORDER BY seq DESC LIMIT ?4"
-        ))
+        )))
         .bind(&q.scene_id)
         .bind(q.status.map(|s| s.as_str()))
         .bind(q.before_seq)
@@ -207,70 +208,13 @@ impl Store {
         rows.iter().map(job_from_row).collect()
     }
 
-    /// Atomically take the oldest queued job whose scene is ready; marks it running,
-    /// counts the attempt and clears any trace of an earlier attempt.
-    pub async fn claim_next_job(&self) -> Result<Option<JobRecord>, StoreError> {
-        let r = self.claim_next_job_tx().await;
-        self.job_cache.invalidate();
-        if let Ok(Some(j)) = &r {
-            self.events.changed(&j.id);
-        }
-        r
-    }
-
-    async fn claim_next_job_tx(&self) -> Result<Option<JobRecord>, StoreError> {
-        let mut tx = self.pool.begin().await?;
-        let row = sqlx::query(&format!(
-            "UPDATE jobs SET status = 'running', attempts = attempts + 1, started_at = ?1 \
-             WHERE seq = (SELECT j.seq FROM jobs j JOIN scenes s ON s.id = j.scene_id \
-                          WHERE j.status = 'queued' AND s.status = 'ready' ORDER BY j.seq LIMIT 1) \
-             RETURNING {JOB_COLS}"
-        ))
-        .bind(now_rfc3339())
-        .fetch_optional(&mut *tx)
-        .await?;
-        let Some(row) = row else {
-            tx.commit().await?;
-            return Ok(None);
-        };
-        let job = job_from_row(&row)?;
-        sqlx::query("DELETE FROM job_trace WHERE job_id = ?")
-            .bind(&job.id)
-            .execute(&mut *tx)
-            .await?;
-        tx.commit().await?;
-        Ok(Some(job))
-    }
-
-    /// Finish a running job; only a job still `running` is changed (a cancel wins).
-    pub async fn finish_job(
-        &self,
-        id: &str,
-        status: JobStatus,
-        result: Option<&Value>,
-        error: Option<&Value>,
-    ) -> Result<bool, StoreError> {
-        let r = sqlx::query("UPDATE jobs SET status = ?, result = ?, error = ?, finished_at = ? WHERE id = ? AND status = 'running'")
-            .bind(status.as_str())
-            .bind(result.map(|v| v.to_string()))
-            .bind(error.map(|v| v.to_string()))
-            .bind(now_rfc3339())
-            .bind(id)
-            .execute(&self.pool)
-            .await;
-        self.job_written(id);
-        Ok(r?.rows_affected() == 1)
-    }
-
     /// Fail every queued job on a scene that failed indexing, with kind `scene_failed` and
     /// the scene's reason. Returns how many were failed.
     pub async fn fail_queued_jobs_of_failed_scenes(&self) -> Result<u64, StoreError> {
-        let r = sqlx::query(
-            "UPDATE jobs SET status = 'failed', finished_at = ?1, \
+        let r = sqlx::query(&self.sql("UPDATE jobs SET status = 'failed', finished_at = ?1, \
              error = json_object('code', 'scene_failed', 'detail', \
                  'the scene failed to index: ' || COALESCE((SELECT s.error FROM scenes s WHERE s.id = jobs.scene_id), 'no reason recorded')) \
-             WHERE status = 'queued' AND scene_id IN (SELECT id FROM scenes WHERE status = 'failed')",
-        )
+             WHERE status = 'queued' AND scene_id IN (SELECT id FROM scenes WHERE status = 'failed')"))
         .bind(now_rfc3339())
         .execute(&self.pool)
         .await;
@@ -278,24 +222,11 @@ impl Store {
         Ok(r?.rows_affected())
     }
 
-    /// Put a running job back in the queue (process shutting down); the attempt is not counted.
-    pub async fn requeue_job(&self, id: &str) -> Result<(), StoreError> {
-        let r = sqlx::query("UPDATE jobs SET status = 'queued', attempts = MAX(attempts - 1, 0), started_at = NULL WHERE id = ? AND status = 'running'")
-            .bind(id)
-            .execute(&self.pool)
-            .await;
-        self.job_written(id);
-        r?;
-        Ok(())
-    }
-
     /// Cancel a job in any non-terminal state. Returns the job after the change, or None
     /// when it does not exist.
     pub async fn cancel_job(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        let r = sqlx::query(
-            "UPDATE jobs SET status = 'canceled', cancel_requested = 1, finished_at = ?, \
-             error = '{\"code\":\"canceled\",\"detail\":\"canceled by request\"}' WHERE id = ? AND status IN ('queued','running')",
-        )
+        let r = sqlx::query(&self.sql("UPDATE jobs SET status = 'canceled', cancel_requested = 1, finished_at = ?, \
+             error = '{\"code\":\"canceled\",\"detail\":\"canceled by request\"}' WHERE id = ? AND status IN ('queued','running')"))
         .bind(now_rfc3339())
         .bind(id)
         .execute(&self.pool)
@@ -305,37 +236,8 @@ impl Store {
         self.get_job(id).await
     }
 
-    /// At start-up: jobs left `running` by a dead process go back to the queue, or fail
-    /// when they have used `max_attempts`. Returns (requeued, failed).
-    pub async fn recover_jobs(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
-        let r = self.recover_jobs_sql(max_attempts).await;
-        self.job_cache.invalidate();
-        self.events.changed_all();
-        r
-    }
-
-    async fn recover_jobs_sql(&self, max_attempts: i64) -> Result<(u64, u64), StoreError> {
-        let failed = sqlx::query(
-            "UPDATE jobs SET status = 'failed', finished_at = ?, \
-             error = json_object('code','too_many_attempts','detail', 'the job was interrupted ' || attempts || ' times while running and was given up') \
-             WHERE status = 'running' AND attempts >= ?",
-        )
-        .bind(now_rfc3339())
-        .bind(max_attempts)
-        .execute(&self.pool)
-        .await?
-        .rows_affected();
-        let requeued = sqlx::query(
-            "UPDATE jobs SET status = 'queued', started_at = NULL WHERE status = 'running'",
-        )
-        .execute(&self.pool)
-        .await?
-        .rows_affected();
-        Ok((requeued, failed))
-    }
-
     pub async fn count_jobs_by_status(&self) -> Result<Vec<(String, i64)>, StoreError> {
-        let rows = sqlx::query("SELECT status, COUNT(*) AS n FROM jobs GROUP BY status")
+        let rows = sqlx::query(&self.sql("SELECT status, COUNT(*) AS n FROM jobs GROUP BY status"))
             .fetch_all(&self.pool)
             .await?;
         rows.iter()
@@ -350,7 +252,7 @@ impl Store {
         step: &str,
         data: &Value,
     ) -> Result<(), StoreError> {
-        let r = sqlx::query("INSERT INTO job_trace (job_id, seq, step, data) VALUES (?1, (SELECT COALESCE(MAX(seq), -1) + 1 FROM job_trace WHERE job_id = ?1), ?2, ?3)")
+        let r = sqlx::query(&self.sql("INSERT INTO job_trace (job_id, seq, step, data) VALUES (?1, (SELECT COALESCE(MAX(seq), -1) + 1 FROM job_trace WHERE job_id = ?1), ?2, ?3)"))
             .bind(job_id)
             .bind(step)
             .bind(data.to_string())
@@ -362,13 +264,20 @@ impl Store {
     }
 
     /// A job's trace as one JSON array text: each stored step object with its `step` name
-    /// added (a step whose data is not an object becomes `{step, data}`). Built by SQLite, so
-    /// a poll costs one statement and the trace is never parsed on the way out.
-    const TRACE_JSON: &'static str = "(SELECT json_group_array(json(CASE \
-        WHEN json_valid(t.data) AND json_type(t.data) = 'object' THEN json_set(t.data, '$.step', t.step) \
-        WHEN json_valid(t.data) THEN json_object('step', t.step, 'data', json(t.data)) \
-        ELSE json_object('step', t.step, 'data', NULL) END) ORDER BY t.seq) \
-        FROM job_trace t WHERE t.job_id = jobs.id)";
+    /// added (a step whose data is not an object becomes `{step, data}`). Built by the
+    /// database, so a poll costs one statement and the trace is never parsed on the way out.
+    fn trace_json(&self) -> &'static str {
+        match self.backend {
+            super::Backend::Sqlite => "(SELECT json_group_array(json(CASE \
+                WHEN json_valid(t.data) AND json_type(t.data) = 'object' THEN json_set(t.data, '$.step', t.step) \
+                WHEN json_valid(t.data) THEN json_object('step', t.step, 'data', json(t.data)) \
+                ELSE json_object('step', t.step, 'data', NULL) END) ORDER BY t.seq) \
+                FROM job_trace t WHERE t.job_id = jobs.id)",
+            // grounder_step: migrations/postgres/0001_init.sql (the same rule).
+            super::Backend::Postgres => "(SELECT COALESCE(jsonb_agg(grounder_step(t.step, t.data) ORDER BY t.seq), '[]'::jsonb)::text \
+                FROM job_trace t WHERE t.job_id = jobs.id)",
+        }
+    }
 
     /// A job and its trace (see [`Self::get_trace`]) in one statement: what a poll needs.
     pub async fn get_job_with_trace(
@@ -379,10 +288,10 @@ impl Store {
             return Ok(Some(hit));
         }
         let epoch = self.job_cache.epoch();
-        let row = sqlx::query(&format!(
+        let row = sqlx::query(&self.sql(format!(
             "SELECT {JOB_COLS}, {} AS trace FROM jobs WHERE id = ?",
-            Self::TRACE_JSON
-        ))
+            self.trace_json()
+        )))
         .bind(id)
         .fetch_optional(&self.pool)
         .await?;
@@ -397,10 +306,10 @@ impl Store {
 
     /// A job's trace, parsed (same shape as in [`Self::get_job_with_trace`]).
     pub async fn get_trace(&self, job_id: &str) -> Result<Vec<Value>, StoreError> {
-        let row = sqlx::query(&format!(
+        let row = sqlx::query(&self.sql(format!(
             "SELECT {} AS trace FROM jobs WHERE id = ?",
-            Self::TRACE_JSON
-        ))
+            self.trace_json()
+        )))
         .bind(job_id)
         .fetch_optional(&self.pool)
         .await?;

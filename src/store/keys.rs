@@ -43,7 +43,7 @@ pub fn secret_hash(secret: &str) -> String {
     hex::encode(Sha256::digest(secret.as_bytes()))
 }
 
-fn key_from_row(r: &sqlx::sqlite::SqliteRow) -> Result<KeyRecord, StoreError> {
+fn key_from_row(r: &sqlx::any::AnyRow) -> Result<KeyRecord, StoreError> {
     Ok(KeyRecord {
         id: r.try_get("id")?,
         name: r.try_get("name")?,
@@ -69,10 +69,10 @@ impl Store {
         let mut hook = [0u8; 32];
         rand::rngs::OsRng.fill_bytes(&mut hook);
         let hook_b64 = base64::engine::general_purpose::STANDARD.encode(hook);
-        let row = sqlx::query(&format!(
+        let row = sqlx::query(&self.sql(format!(
             "INSERT INTO api_keys (name, secret_sha256, admin, max_running_jobs, max_scene_bytes, webhook_secret, created_at) \
              VALUES (?,?,?,?,?,?,?) ON CONFLICT DO NOTHING RETURNING {KEY_COLS}"
-        ))
+        )))
         .bind(&spec.name)
         .bind(secret_hash(&secret))
         .bind(spec.admin as i64)
@@ -92,7 +92,7 @@ impl Store {
 
     /// All keys, revoked ones included, oldest first.
     pub async fn list_keys(&self) -> Result<Vec<KeyRecord>, StoreError> {
-        let rows = sqlx::query(&format!("SELECT {KEY_COLS} FROM api_keys ORDER BY id"))
+        let rows = sqlx::query(&self.sql(format!("SELECT {KEY_COLS} FROM api_keys ORDER BY id")))
             .fetch_all(&self.pool)
             .await?;
         rows.iter().map(key_from_row).collect()
@@ -100,20 +100,21 @@ impl Store {
 
     /// Revoke the active key of this name; false when there is none.
     pub async fn revoke_key(&self, name: &str) -> Result<bool, StoreError> {
-        let r =
-            sqlx::query("UPDATE api_keys SET revoked_at = ? WHERE name = ? AND revoked_at IS NULL")
-                .bind(now_rfc3339())
-                .bind(name)
-                .execute(&self.pool)
-                .await?;
+        let r = sqlx::query(
+            &self.sql("UPDATE api_keys SET revoked_at = ? WHERE name = ? AND revoked_at IS NULL"),
+        )
+        .bind(now_rfc3339())
+        .bind(name)
+        .execute(&self.pool)
+        .await?;
         Ok(r.rows_affected() > 0)
     }
 
     /// The active key whose secret has this hash.
     pub async fn key_by_hash(&self, hash: &str) -> Result<Option<KeyRecord>, StoreError> {
-        let row = sqlx::query(&format!(
+        let row = sqlx::query(&self.sql(format!(
             "SELECT {KEY_COLS} FROM api_keys WHERE secret_sha256 = ? AND revoked_at IS NULL"
-        ))
+        )))
         .bind(hash)
         .fetch_optional(&self.pool)
         .await?;
@@ -122,16 +123,17 @@ impl Store {
 
     /// Whether any active key exists (then every `/v1/` request needs one).
     pub async fn any_active_key(&self) -> Result<bool, StoreError> {
-        let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM api_keys WHERE revoked_at IS NULL")
-            .fetch_one(&self.pool)
-            .await?;
+        let n: i64 =
+            sqlx::query_scalar(&self.sql("SELECT COUNT(*) FROM api_keys WHERE revoked_at IS NULL"))
+                .fetch_one(&self.pool)
+                .await?;
         Ok(n > 0)
     }
 
     /// The webhook secret (`whsec_...`) of the active key of this name.
     pub async fn webhook_secret_by_name(&self, name: &str) -> Result<Option<String>, StoreError> {
         let s: Option<String> = sqlx::query_scalar(
-            "SELECT webhook_secret FROM api_keys WHERE name = ? AND revoked_at IS NULL",
+            &self.sql("SELECT webhook_secret FROM api_keys WHERE name = ? AND revoked_at IS NULL"),
         )
         .bind(name)
         .fetch_optional(&self.pool)
@@ -142,7 +144,7 @@ impl Store {
     /// The raw HMAC key of a key id (revoked keys still sign their jobs' webhooks).
     pub async fn webhook_key_bytes(&self, key_id: i64) -> Result<Option<Vec<u8>>, StoreError> {
         let s: Option<String> =
-            sqlx::query_scalar("SELECT webhook_secret FROM api_keys WHERE id = ?")
+            sqlx::query_scalar(&self.sql("SELECT webhook_secret FROM api_keys WHERE id = ?"))
                 .bind(key_id)
                 .fetch_optional(&self.pool)
                 .await?;
@@ -158,7 +160,9 @@ impl Store {
     /// Jobs of this owner that are queued or running.
     pub async fn active_jobs_of(&self, owner: i64) -> Result<i64, StoreError> {
         Ok(sqlx::query_scalar(
-            "SELECT COUNT(*) FROM jobs WHERE owner = ? AND status IN ('queued','running')",
+            &self.sql(
+                "SELECT COUNT(*) FROM jobs WHERE owner = ? AND status IN ('queued','running')",
+            ),
         )
         .bind(owner)
         .fetch_one(&self.pool)
@@ -167,11 +171,11 @@ impl Store {
 
     /// Upload bytes of this owner's stored scenes.
     pub async fn scene_bytes_of(&self, owner: i64) -> Result<i64, StoreError> {
-        Ok(
-            sqlx::query_scalar("SELECT COALESCE(SUM(upload_bytes), 0) FROM scenes WHERE owner = ?")
-                .bind(owner)
-                .fetch_one(&self.pool)
-                .await?,
-        )
+        Ok(sqlx::query_scalar(&self.sql(
+            "SELECT CAST(COALESCE(SUM(upload_bytes), 0) AS BIGINT) FROM scenes WHERE owner = ?",
+        ))
+        .bind(owner)
+        .fetch_one(&self.pool)
+        .await?)
     }
 }

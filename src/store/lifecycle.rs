@@ -14,27 +14,31 @@ impl Store {
     /// Make an imported scene visible: `importing` turns `status`. False when the row is
     /// no longer `importing` (it was swept).
     pub async fn publish_scene(&self, id: &str, status: &str) -> Result<bool, StoreError> {
-        let r = sqlx::query("UPDATE scenes SET status = ? WHERE id = ? AND status = 'importing'")
-            .bind(status)
-            .bind(id)
-            .execute(&self.pool)
-            .await?;
+        let r = sqlx::query(
+            &self.sql("UPDATE scenes SET status = ? WHERE id = ? AND status = 'importing'"),
+        )
+        .bind(status)
+        .bind(id)
+        .execute(&self.pool)
+        .await?;
         Ok(r.rows_affected() == 1)
     }
 
     /// Remove the row of a scene being imported or deleted (its frames and detections go
     /// with it); jobs still queued on it are canceled. A visible scene is never touched.
     pub async fn remove_hidden_scene(&self, id: &str) -> Result<(), StoreError> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
-        sqlx::query("DELETE FROM scenes WHERE id = ? AND status IN ('importing', 'deleting')")
-            .bind(id)
-            .execute(&mut *tx)
-            .await?;
+        let mut tx = self.begin_write().await?;
         sqlx::query(
+            &self.sql("DELETE FROM scenes WHERE id = ? AND status IN ('importing', 'deleting')"),
+        )
+        .bind(id)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query(&self.sql(
             "UPDATE jobs SET status = 'canceled', finished_at = ?, error = ? \
              WHERE scene_id = ? AND status = 'queued' \
              AND NOT EXISTS (SELECT 1 FROM scenes WHERE id = ?3)",
-        )
+        ))
         .bind(now_rfc3339())
         .bind(SCENE_DELETED)
         .bind(id)
@@ -48,16 +52,16 @@ impl Store {
 
     /// Scenes left `importing` or `deleting` (by a crash): (id, status).
     pub async fn hidden_scenes(&self) -> Result<Vec<(String, String)>, StoreError> {
-        Ok(sqlx::query_as(
+        Ok(sqlx::query_as(&self.sql(
             "SELECT id, status FROM scenes WHERE status IN ('importing', 'deleting') ORDER BY id",
-        )
+        ))
         .fetch_all(&self.pool)
         .await?)
     }
 
     /// Every scene row's id, whatever its state.
     pub async fn scene_ids(&self) -> Result<HashSet<String>, StoreError> {
-        let ids: Vec<String> = sqlx::query_scalar("SELECT id FROM scenes")
+        let ids: Vec<String> = sqlx::query_scalar(&self.sql("SELECT id FROM scenes"))
             .fetch_all(&self.pool)
             .await?;
         Ok(ids.into_iter().collect())
@@ -66,7 +70,7 @@ impl Store {
     /// The file stems of a scene's frames (under `color/` and `instance/`).
     pub async fn frame_files(&self, scene_id: &str) -> Result<HashSet<String>, StoreError> {
         let stems: Vec<String> = sqlx::query_scalar(
-            "SELECT COALESCE(file, CAST(idx AS TEXT)) FROM frames WHERE scene_id = ?",
+            &self.sql("SELECT COALESCE(file, CAST(idx AS TEXT)) FROM frames WHERE scene_id = ?"),
         )
         .bind(scene_id)
         .fetch_all(&self.pool)
@@ -77,7 +81,7 @@ impl Store {
     /// The ids of every job ever run on a scene (their artifacts go with it).
     pub async fn job_ids_of_scene(&self, scene_id: &str) -> Result<Vec<String>, StoreError> {
         Ok(
-            sqlx::query_scalar("SELECT id FROM jobs WHERE scene_id = ? ORDER BY seq")
+            sqlx::query_scalar(&self.sql("SELECT id FROM jobs WHERE scene_id = ? ORDER BY seq"))
                 .bind(scene_id)
                 .fetch_all(&self.pool)
                 .await?,
@@ -87,10 +91,15 @@ impl Store {
     /// Delete the jobs that finished before `cutoff` (RFC 3339) with their trace, events
     /// and webhook rows; returns their ids (their artifacts are the caller's to remove).
     pub async fn delete_finished_before(&self, cutoff: &str) -> Result<Vec<String>, StoreError> {
-        let ids: Vec<String> = sqlx::query_scalar(
+        let older = if self.pg() {
+            "finished_at::timestamptz < (?)::timestamptz"
+        } else {
+            "julianday(finished_at) < julianday(?)"
+        };
+        let ids: Vec<String> = sqlx::query_scalar(&self.sql(format!(
             "DELETE FROM jobs WHERE status IN ('succeeded', 'failed', 'canceled') \
-             AND finished_at IS NOT NULL AND julianday(finished_at) < julianday(?) RETURNING id",
-        )
+             AND finished_at IS NOT NULL AND {older} RETURNING id"
+        )))
         .bind(cutoff)
         .fetch_all(&self.pool)
         .await?;
@@ -103,7 +112,7 @@ impl Store {
 
     /// Does a job row exist?
     pub async fn job_exists(&self, id: &str) -> Result<bool, StoreError> {
-        let n: Option<i64> = sqlx::query_scalar("SELECT 1 FROM jobs WHERE id = ?")
+        let n: Option<i64> = sqlx::query_scalar(&self.sql("SELECT 1 FROM jobs WHERE id = ?"))
             .bind(id)
             .fetch_optional(&self.pool)
             .await?;
@@ -113,10 +122,8 @@ impl Store {
     /// Cancel queued jobs whose scene row is gone (a job created while its scene was being
     /// deleted); returns how many.
     pub async fn cancel_jobs_without_scene(&self) -> Result<u64, StoreError> {
-        let r = sqlx::query(
-            "UPDATE jobs SET status = 'canceled', finished_at = ?, error = ? \
-             WHERE status = 'queued' AND NOT EXISTS (SELECT 1 FROM scenes s WHERE s.id = jobs.scene_id)",
-        )
+        let r = sqlx::query(&self.sql("UPDATE jobs SET status = 'canceled', finished_at = ?, error = ? \
+             WHERE status = 'queued' AND NOT EXISTS (SELECT 1 FROM scenes s WHERE s.id = jobs.scene_id)"))
         .bind(now_rfc3339())
         .bind(SCENE_DELETED)
         .execute(&self.pool)
@@ -130,9 +137,7 @@ impl Store {
 
     /// Count the start of an indexing attempt of a scene; returns the attempts so far.
     pub async fn begin_index_attempt(&self, id: &str) -> Result<i64, StoreError> {
-        let n: Option<i64> = sqlx::query_scalar(
-            "UPDATE scenes SET index_attempts = index_attempts + 1 WHERE id = ? RETURNING index_attempts",
-        )
+        let n: Option<i64> = sqlx::query_scalar(&self.sql("UPDATE scenes SET index_attempts = index_attempts + 1 WHERE id = ? RETURNING index_attempts"))
         .bind(id)
         .fetch_optional(&self.pool)
         .await?;
@@ -141,7 +146,7 @@ impl Store {
 
     /// Indexing ended (either way): the next indexing starts counting afresh.
     pub async fn end_index_attempts(&self, id: &str) -> Result<(), StoreError> {
-        sqlx::query("UPDATE scenes SET index_attempts = 0 WHERE id = ?")
+        sqlx::query(&self.sql("UPDATE scenes SET index_attempts = 0 WHERE id = ?"))
             .bind(id)
             .execute(&self.pool)
             .await?;
@@ -151,7 +156,8 @@ impl Store {
     /// Scenes left `indexing` by a previous process, with their attempts so far.
     pub async fn interrupted_indexing(&self) -> Result<Vec<(String, i64)>, StoreError> {
         Ok(sqlx::query_as(
-            "SELECT id, index_attempts FROM scenes WHERE status = 'indexing' ORDER BY id",
+            &self
+                .sql("SELECT id, index_attempts FROM scenes WHERE status = 'indexing' ORDER BY id"),
         )
         .fetch_all(&self.pool)
         .await?)

@@ -28,20 +28,24 @@ const CANDIDATES_NONE: &str = "(none)";
 
 /// Replace one frame's cached rows of `detector` with `rows`, inside `tx`.
 async fn replace_frame_rows(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    backend: super::Backend,
     scene_id: &str,
     detector: &str,
     frame_idx: usize,
     rows: &[Detection],
 ) -> Result<(), StoreError> {
-    sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?")
-        .bind(scene_id)
-        .bind(detector)
-        .bind(frame_idx as i64)
-        .execute(&mut **tx)
-        .await?;
+    sqlx::query(
+        &backend
+            .sql("DELETE FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ?"),
+    )
+    .bind(scene_id)
+    .bind(detector)
+    .bind(frame_idx as i64)
+    .execute(&mut **tx)
+    .await?;
     for d in rows {
-        sqlx::query("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)")
+        sqlx::query(&backend.sql("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)"))
             .bind(scene_id)
             .bind(detector)
             .bind(frame_idx as i64)
@@ -116,11 +120,9 @@ impl Store {
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
         let usable = scene.frames.iter().filter(|f| f.usable).count() as i64;
-        sqlx::query(
-            "INSERT INTO scenes (id, name, layout, status, color_width, color_height, depth_width, depth_height, \
+        sqlx::query(&self.sql("INSERT INTO scenes (id, name, layout, status, color_width, color_height, depth_width, depth_height, \
              color_k, depth_k, axis_align, has_instances, frame_count, unusable_count, index_detector, index_done, index_total, created_at, owner, upload_bytes) \
-             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?,?,?)",
-        )
+             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?,?,?)"))
         .bind(id)
         .bind(&scene.name)
         .bind(
@@ -147,7 +149,7 @@ impl Store {
         .execute(&mut *tx)
         .await?;
         for f in &scene.frames {
-            sqlx::query("INSERT INTO frames (scene_id, idx, name, pose, usable, depth) VALUES (?,?,?,?,?,?)")
+            sqlx::query(&self.sql("INSERT INTO frames (scene_id, idx, name, pose, usable, depth) VALUES (?,?,?,?,?,?)"))
                 .bind(id)
                 .bind(f.idx as i64)
                 .bind(&f.name)
@@ -162,7 +164,7 @@ impl Store {
     }
 
     fn scene_from_row(
-        row: &sqlx::sqlite::SqliteRow,
+        row: &sqlx::any::AnyRow,
         unusable: Vec<String>,
     ) -> Result<SceneRecord, StoreError> {
         Ok(SceneRecord {
@@ -188,20 +190,21 @@ impl Store {
     }
 
     async fn unusable_names(&self, id: &str) -> Result<Vec<String>, StoreError> {
-        let rows =
-            sqlx::query("SELECT name FROM frames WHERE scene_id = ? AND usable = 0 ORDER BY idx")
-                .bind(id)
-                .fetch_all(&self.pool)
-                .await?;
+        let rows = sqlx::query(
+            &self.sql("SELECT name FROM frames WHERE scene_id = ? AND usable = 0 ORDER BY idx"),
+        )
+        .bind(id)
+        .fetch_all(&self.pool)
+        .await?;
         rows.iter()
             .map(|r| r.try_get::<String, _>("name").map_err(StoreError::from))
             .collect()
     }
 
     pub async fn get_scene(&self, id: &str) -> Result<Option<SceneRecord>, StoreError> {
-        let Some(row) = sqlx::query(&format!(
+        let Some(row) = sqlx::query(&self.sql(format!(
             "SELECT * FROM scenes WHERE id = ? AND status NOT IN {HIDDEN_STATES}"
-        ))
+        )))
         .bind(id)
         .fetch_optional(&self.pool)
         .await?
@@ -214,10 +217,10 @@ impl Store {
 
     /// Scenes, oldest first; only `owner`'s when given.
     pub async fn list_scenes(&self, owner: Option<i64>) -> Result<Vec<SceneRecord>, StoreError> {
-        let rows = sqlx::query(&format!(
+        let rows = sqlx::query(&self.sql(format!(
             "SELECT * FROM scenes WHERE (?1 IS NULL OR owner = ?1) AND status NOT IN {HIDDEN_STATES} \
              ORDER BY created_at, id"
-        ))
+        )))
         .bind(owner)
         .fetch_all(&self.pool)
         .await?;
@@ -244,9 +247,9 @@ impl Store {
         // IMMEDIATE: the check and the writes hold the write lock from the start. A deferred
         // transaction that reads first cannot upgrade once another connection has written
         // (SQLite answers "database is locked" at once, without waiting).
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let busy: i64 = sqlx::query_scalar(
-            "SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'",
+            &self.sql("SELECT COUNT(*) FROM jobs WHERE scene_id = ? AND status = 'running'"),
         )
         .bind(id)
         .fetch_one(&mut *tx)
@@ -254,13 +257,13 @@ impl Store {
         if busy > 0 {
             return Ok(false);
         }
-        sqlx::query("UPDATE jobs SET status = 'canceled', finished_at = ?, error = ? WHERE scene_id = ? AND status = 'queued'")
+        sqlx::query(&self.sql("UPDATE jobs SET status = 'canceled', finished_at = ?, error = ? WHERE scene_id = ? AND status = 'queued'"))
             .bind(now_rfc3339())
             .bind(r#"{"code":"scene_deleted","detail":"the scene was deleted before the job ran"}"#)
             .bind(id)
             .execute(&mut *tx)
             .await?;
-        sqlx::query("UPDATE scenes SET status = 'deleting' WHERE id = ?")
+        sqlx::query(&self.sql("UPDATE scenes SET status = 'deleting' WHERE id = ?"))
             .bind(id)
             .execute(&mut *tx)
             .await?;
@@ -276,9 +279,9 @@ impl Store {
     ) -> Result<(), StoreError> {
         // A scene being imported or deleted keeps that state (an indexer racing a delete
         // must not bring the row back).
-        sqlx::query(&format!(
+        sqlx::query(&self.sql(format!(
             "UPDATE scenes SET status = ?, error = ? WHERE id = ? AND status NOT IN {HIDDEN_STATES}"
-        ))
+        )))
         .bind(status)
         .bind(error)
         .bind(id)
@@ -289,10 +292,12 @@ impl Store {
 
     /// Scenes left `indexing` by a previous process (indexing is restarted for them).
     pub async fn scenes_with_status(&self, status: &str) -> Result<Vec<String>, StoreError> {
-        Ok(sqlx::query_scalar("SELECT id FROM scenes WHERE status = ?")
-            .bind(status)
-            .fetch_all(&self.pool)
-            .await?)
+        Ok(
+            sqlx::query_scalar(&self.sql("SELECT id FROM scenes WHERE status = ?"))
+                .bind(status)
+                .fetch_all(&self.pool)
+                .await?,
+        )
     }
 
     /// Replace a frame's cached detections and bump the scene's indexing progress.
@@ -304,8 +309,8 @@ impl Store {
         dets: &[Detection],
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        replace_frame_rows(&mut tx, scene_id, detector, frame_idx, dets).await?;
-        sqlx::query("UPDATE scenes SET index_done = index_done + 1 WHERE id = ?")
+        replace_frame_rows(&mut tx, self.backend, scene_id, detector, frame_idx, dets).await?;
+        sqlx::query(&self.sql("UPDATE scenes SET index_done = index_done + 1 WHERE id = ?"))
             .bind(scene_id)
             .execute(&mut *tx)
             .await?;
@@ -328,7 +333,15 @@ impl Store {
         }];
         let rows = if cands.is_empty() { &none[..] } else { cands };
         let mut tx = self.pool.begin().await?;
-        replace_frame_rows(&mut tx, scene_id, CANDIDATES_KEY, frame_idx, rows).await?;
+        replace_frame_rows(
+            &mut tx,
+            self.backend,
+            scene_id,
+            CANDIDATES_KEY,
+            frame_idx,
+            rows,
+        )
+        .await?;
         tx.commit().await?;
         Ok(())
     }
@@ -340,7 +353,7 @@ impl Store {
         scene_id: &str,
         frame_idx: usize,
     ) -> Result<Option<Vec<Detection>>, StoreError> {
-        let rows = sqlx::query("SELECT label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? ORDER BY rowid")
+        let rows = sqlx::query(&self.sql("SELECT label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? ORDER BY rowid"))
             .bind(scene_id)
             .bind(CANDIDATES_KEY)
             .bind(frame_idx as i64)
@@ -361,7 +374,7 @@ impl Store {
         }
         if out.is_empty() {
             // A frame indexed with candidates and none found holds one marker row.
-            let marked: Option<i64> = sqlx::query_scalar("SELECT 1 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? AND label = ? LIMIT 1")
+            let marked: Option<i64> = sqlx::query_scalar(&self.sql("SELECT 1 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? AND label = ? LIMIT 1"))
                 .bind(scene_id)
                 .bind(CANDIDATES_KEY)
                 .bind(frame_idx as i64)
@@ -381,13 +394,13 @@ impl Store {
         total: usize,
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("DELETE FROM detections WHERE scene_id = ? AND detector IN (?, ?)")
+        sqlx::query(&self.sql("DELETE FROM detections WHERE scene_id = ? AND detector IN (?, ?)"))
             .bind(scene_id)
             .bind(detector)
             .bind(CANDIDATES_KEY)
             .execute(&mut *tx)
             .await?;
-        sqlx::query(&format!("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ? AND status NOT IN {HIDDEN_STATES}"))
+        sqlx::query(&self.sql(format!("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ? AND status NOT IN {HIDDEN_STATES}")))
             .bind(detector)
             .bind(total as i64)
             .bind(scene_id)
@@ -403,7 +416,7 @@ impl Store {
         scene_id: &str,
         detector: &str,
     ) -> Result<BTreeMap<usize, Vec<Detection>>, StoreError> {
-        let rows = sqlx::query("SELECT frame_idx, label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? ORDER BY frame_idx, score DESC")
+        let rows = sqlx::query(&self.sql("SELECT frame_idx, label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? ORDER BY frame_idx, score DESC"))
             .bind(scene_id)
             .bind(detector)
             .fetch_all(&self.pool)
@@ -427,7 +440,7 @@ impl Store {
         id: &str,
         scene_dir: &Path,
     ) -> Result<Option<SceneData>, StoreError> {
-        let Some(s) = sqlx::query("SELECT * FROM scenes WHERE id = ?")
+        let Some(s) = sqlx::query(&self.sql("SELECT * FROM scenes WHERE id = ?"))
             .bind(id)
             .fetch_optional(&self.pool)
             .await?
@@ -454,9 +467,9 @@ impl Store {
         };
         let dw: i64 = s.try_get("depth_width")?;
         let dh: i64 = s.try_get("depth_height")?;
-        let rows = sqlx::query(
-            "SELECT idx, name, pose, usable, LENGTH(depth) AS depth_len, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? ORDER BY idx",
-        )
+        let rows = sqlx::query(&self.sql(
+            "SELECT idx, name, pose, usable, CAST(LENGTH(depth) AS BIGINT) AS depth_len, COALESCE(file, CAST(idx AS TEXT)) AS file FROM frames WHERE scene_id = ? ORDER BY idx",
+        ))
         .bind(id)
         .fetch_all(&self.pool)
         .await?;
@@ -556,9 +569,8 @@ impl Store {
         let writer = tokio::task::spawn_blocking(move || {
             depth_file::write(&dir, &k, std::iter::from_fn(|| rx.blocking_recv()))
         });
-        let mut rows = sqlx::query("SELECT depth FROM frames WHERE scene_id = ? ORDER BY idx")
-            .bind(id)
-            .fetch(&self.pool);
+        let depth_sql = self.sql("SELECT depth FROM frames WHERE scene_id = ? ORDER BY idx");
+        let mut rows = sqlx::query(&depth_sql).bind(id).fetch(&self.pool);
         let mut read_error = None;
         while let Some(r) = rows.next().await {
             match r.and_then(|r| r.try_get::<Vec<u8>, _>("depth")) {
@@ -595,10 +607,11 @@ impl Store {
                 tracing::warn!(scene = %id, "cannot write the depth file, decoding depth into memory: {e:#}")
             }
         }
-        let rows = sqlx::query("SELECT depth FROM frames WHERE scene_id = ? ORDER BY idx")
-            .bind(id)
-            .fetch_all(&self.pool)
-            .await?;
+        let rows =
+            sqlx::query(&self.sql("SELECT depth FROM frames WHERE scene_id = ? ORDER BY idx"))
+                .bind(id)
+                .fetch_all(&self.pool)
+                .await?;
         let (w, h) = (key.width, key.height);
         let decoded = tokio::task::spawn_blocking(move || {
             rows.iter()

@@ -42,10 +42,10 @@ pub fn now_ms() -> i64 {
 impl Store {
     /// Pending deliveries whose time has come, oldest first.
     pub async fn due_webhooks(&self, limit: i64) -> Result<Vec<DueWebhook>, StoreError> {
-        let rows = sqlx::query(
+        let rows = sqlx::query(&self.sql(
             "SELECT job_id, msg_id, attempts, first_at FROM webhook_queue \
              WHERE state = 'pending' AND next_at <= ? ORDER BY next_at LIMIT ?",
-        )
+        ))
         .bind(now_ms())
         .bind(limit)
         .fetch_all(&self.pool)
@@ -64,11 +64,11 @@ impl Store {
 
     /// When the next pending delivery is due (unix ms).
     pub async fn next_webhook_due(&self) -> Result<Option<i64>, StoreError> {
-        Ok(
-            sqlx::query_scalar("SELECT MIN(next_at) FROM webhook_queue WHERE state = 'pending'")
-                .fetch_one(&self.pool)
-                .await?,
+        Ok(sqlx::query_scalar(
+            &self.sql("SELECT MIN(next_at) FROM webhook_queue WHERE state = 'pending'"),
         )
+        .fetch_one(&self.pool)
+        .await?)
     }
 
     /// Record an attempt and schedule the next one (or close the delivery).
@@ -78,21 +78,22 @@ impl Store {
         a: &Attempt<'_>,
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("INSERT INTO webhook_deliveries (job_id, at, status, error) VALUES (?,?,?,?)")
-            .bind(job_id)
-            .bind(now_rfc3339())
-            .bind(a.status.map(i64::from))
-            .bind(a.error)
-            .execute(&mut *tx)
-            .await?;
+        sqlx::query(
+            &self
+                .sql("INSERT INTO webhook_deliveries (job_id, at, status, error) VALUES (?,?,?,?)"),
+        )
+        .bind(job_id)
+        .bind(now_rfc3339())
+        .bind(a.status.map(i64::from))
+        .bind(a.error)
+        .execute(&mut *tx)
+        .await?;
         let state = match (a.delivered, a.retry_at_ms) {
             (true, _) => "delivered",
             (false, Some(_)) => "pending",
             (false, None) => "failed",
         };
-        sqlx::query(
-            "UPDATE webhook_queue SET attempts = attempts + 1, state = ?, next_at = COALESCE(?, next_at) WHERE job_id = ?",
-        )
+        sqlx::query(&self.sql("UPDATE webhook_queue SET attempts = attempts + 1, state = ?, next_at = COALESCE(?, next_at) WHERE job_id = ?"))
         .bind(state)
         .bind(a.retry_at_ms)
         .bind(job_id)
@@ -110,16 +111,17 @@ impl Store {
         job_id: &str,
     ) -> Result<(Option<String>, Vec<Delivery>), StoreError> {
         let state: Option<String> =
-            sqlx::query_scalar("SELECT state FROM webhook_queue WHERE job_id = ?")
+            sqlx::query_scalar(&self.sql("SELECT state FROM webhook_queue WHERE job_id = ?"))
                 .bind(job_id)
                 .fetch_optional(&self.pool)
                 .await?;
-        let rows = sqlx::query(
-            "SELECT at, status, error FROM webhook_deliveries WHERE job_id = ? ORDER BY id",
-        )
-        .bind(job_id)
-        .fetch_all(&self.pool)
-        .await?;
+        let rows =
+            sqlx::query(&self.sql(
+                "SELECT at, status, error FROM webhook_deliveries WHERE job_id = ? ORDER BY id",
+            ))
+            .bind(job_id)
+            .fetch_all(&self.pool)
+            .await?;
         let list = rows
             .iter()
             .map(|r| {

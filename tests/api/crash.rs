@@ -10,53 +10,24 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::Value;
 use std::collections::BTreeSet;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-
-pub struct Server {
-    pub child: Child,
-    pub base: String,
-}
 
 /// Start `grounder serve` on a data dir with the test pipeline and a slow oracle detector
 /// (so that indexing lasts long enough to be interrupted). `env` adds settings.
 pub fn start(data_dir: &Path, env: &[(&str, &str)]) -> Server {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_grounder"));
-    cmd.args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
-        .arg(data_dir)
-        .env("GROUNDER_PIPELINE", "test:delay_ms=200")
-        .env("GROUNDER_DETECTOR", "oracle:delay_ms=40")
-        .env("GROUNDER_WORKERS", "1")
+    let mut all = vec![
+        ("GROUNDER_DETECTOR", "oracle:delay_ms=40"),
         // Widen the windows between an import's or a delete's steps, so kills land there.
-        .env("GROUNDER_TEST_STEP_PAUSE_MS", "60")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null());
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let mut child = cmd.spawn().expect("spawn grounder");
-    let stdout = child.stdout.take().expect("stdout");
-    let mut line = String::new();
-    BufReader::new(stdout)
-        .read_line(&mut line)
-        .expect("read listening line");
-    let base = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap_or_else(|| panic!("no listening line: {line:?}"))
-        .to_string();
-    Server { child, base }
+        ("GROUNDER_TEST_STEP_PAUSE_MS", "60"),
+    ];
+    all.extend_from_slice(env);
+    start_server(data_dir, &all)
 }
 
-pub fn kill(child: &mut Child, sig: &str) {
-    Command::new("kill")
-        .args([sig, &child.id().to_string()])
-        .status()
-        .expect("kill");
-    child.wait().expect("wait");
+pub fn kill(child: &mut std::process::Child, sig: &str) {
+    signal(child, sig)
 }
 
 /// A tiny scene with 16-bit instance masks and labels (the oracle detector needs them).

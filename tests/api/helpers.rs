@@ -7,6 +7,10 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+/// The throwaway PostgreSQL of the tests that run on both backends.
+#[path = "pg.rs"]
+pub mod pg;
+
 pub struct TestApp {
     pub addr: SocketAddr,
     pub client: reqwest::Client,
@@ -16,9 +20,12 @@ pub struct TestApp {
     handle: Option<tokio::task::JoinHandle<()>>,
 }
 
+/// A test server's configuration: SQLite in `data_dir`, or in the PostgreSQL run (see
+/// `pg.rs`) a database of its own on the test cluster.
 pub fn test_config(data_dir: PathBuf) -> Config {
     Config {
         addr: "127.0.0.1:0".into(),
+        database_url: pg::database_for(&data_dir),
         data_dir,
         pipeline: "test:delay_ms=100".into(),
         detector: "none".into(),
@@ -194,6 +201,22 @@ pub fn zip_of(files: &[(String, Vec<u8>)]) -> Vec<u8> {
     z.finish().expect("zip finish").into_inner()
 }
 
+/// The store a test server with this data dir uses (see [`test_config`]).
+pub async fn open_store(data_dir: &std::path::Path) -> grounder::store::Store {
+    match pg::database_for(data_dir) {
+        Some(url) => grounder::store::Store::connect(&url, data_dir).await,
+        None => grounder::store::Store::open(data_dir).await,
+    }
+    .expect("open store")
+}
+
+/// Environment for a `grounder` child process using the same database as [`test_config`].
+pub fn database_env(data_dir: &std::path::Path) -> Vec<(String, String)> {
+    pg::database_for(data_dir)
+        .map(|u| vec![("GROUNDER_DATABASE_URL".to_string(), u)])
+        .unwrap_or_default()
+}
+
 /// Create an API key in a data dir (as `grounder keys create` does): (secret, whsec).
 pub async fn create_key(
     data_dir: &std::path::Path,
@@ -202,7 +225,7 @@ pub async fn create_key(
     max_running_jobs: Option<i64>,
     max_scene_bytes: Option<i64>,
 ) -> (String, String) {
-    let store = grounder::store::Store::open(data_dir).await.expect("store");
+    let store = open_store(data_dir).await;
     let k = store
         .create_key(&grounder::store::KeySpec {
             name: name.into(),
@@ -269,4 +292,58 @@ pub async fn read_sse(resp: reqwest::Response) -> Vec<Sse> {
         }
     }
     out
+}
+
+/// A `grounder serve` child process (the real binary) and its base URL; SIGKILLed when
+/// dropped while still running, so a failing test leaves no server behind.
+pub struct Server {
+    pub child: std::process::Child,
+    pub base: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Start `grounder serve` on a free port and `data_dir`: the test pipeline (200 ms a job),
+/// no detector, one worker; `env` adds or overrides settings. Returns once it listens.
+pub fn start_server(data_dir: &std::path::Path, env: &[(&str, &str)]) -> Server {
+    use std::io::BufRead;
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"));
+    cmd.args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
+        .arg(data_dir)
+        .env("GROUNDER_PIPELINE", "test:delay_ms=200")
+        .env("GROUNDER_DETECTOR", "none")
+        .env("GROUNDER_WORKERS", "1")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null());
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().expect("spawn grounder");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut line = String::new();
+    std::io::BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("read listening line");
+    let base = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("no listening line: {line:?}"))
+        .to_string();
+    Server { child, base }
+}
+
+/// Send `sig` (e.g. "-KILL", "-TERM") to a server and wait for it to exit.
+pub fn signal(child: &mut std::process::Child, sig: &str) {
+    std::process::Command::new("kill")
+        .args([sig, &child.id().to_string()])
+        .status()
+        .expect("kill");
+    child.wait().expect("wait");
 }

@@ -104,7 +104,7 @@ async fn a_different_body_is_422_and_a_request_in_flight_is_409() {
     // A first request still in flight holds its key (as the server does while it
     // processes one): the same key and body get 409, and nothing is created.
     let raw = serde_json::to_vec(&other).unwrap();
-    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    let store = crate::helpers::open_store(&app.data_dir).await;
     let begun = store
         .idempotency_begin(
             0,

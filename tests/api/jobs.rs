@@ -204,7 +204,7 @@ async fn listing_pages_with_a_cursor_and_filters() {
 async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
     let app = TestApp::spawn().await;
     let sid = scene(&app).await;
-    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    let store = crate::helpers::open_store(&app.data_dir).await;
     store
         .set_scene_status(&sid, "indexing", None)
         .await
@@ -366,7 +366,7 @@ async fn a_poll_returns_the_trace_in_step_order() {
 async fn a_new_job_is_reported_queued_even_when_claimed_at_once() {
     let app = TestApp::spawn().await;
     let sid = scene(&app).await;
-    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    let store = crate::helpers::open_store(&app.data_dir).await;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let claimer = {
         let (store, stop) = (store.clone(), stop.clone());

@@ -271,6 +271,7 @@ fn cli(dir: &std::path::Path, args: &[&str]) -> std::process::Output {
         .args(args)
         .arg("--data-dir")
         .arg(dir)
+        .envs(crate::helpers::database_env(dir))
         .env_remove("GROUNDER_CONFIG")
         .output()
         .expect("run grounder keys")
@@ -295,8 +296,20 @@ async fn the_keys_cli_creates_lists_revokes_and_shows_webhook_secrets() {
         "{text}"
     );
     // Only a hash is stored.
-    let db = std::fs::read(dir.path().join("grounder.db")).unwrap();
-    let wal = std::fs::read(dir.path().join("grounder.db-wal")).unwrap_or_default();
+    let (db, wal) = if crate::helpers::pg::database_for(dir.path()).is_none() {
+        let db = std::fs::read(dir.path().join("grounder.db")).unwrap();
+        let wal = std::fs::read(dir.path().join("grounder.db-wal")).unwrap_or_default();
+        (db, wal)
+    } else {
+        let store = crate::helpers::open_store(dir.path()).await;
+        let rows: Vec<String> =
+            sqlx::query_scalar("SELECT name || secret_sha256 || webhook_secret FROM api_keys")
+                .fetch_all(&store.pool)
+                .await
+                .unwrap();
+        assert!(!rows.is_empty(), "the key is in the database");
+        (rows.concat().into_bytes(), Vec::new())
+    };
     let has = |hay: &[u8]| hay.windows(secret.len()).any(|w| w == secret.as_bytes());
     assert!(!has(&db) && !has(&wal), "the secret is not in the database");
 

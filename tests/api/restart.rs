@@ -2,37 +2,13 @@
 
 use crate::helpers::*;
 use serde_json::Value;
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-struct Server {
-    child: Child,
-    base: String,
-}
-
 fn start(data_dir: &std::path::Path, delay_ms: u64) -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_grounder"))
-        .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
-        .arg(data_dir)
-        .env("GROUNDER_PIPELINE", format!("test:delay_ms={delay_ms}"))
-        .env("GROUNDER_DETECTOR", "none")
-        .env("GROUNDER_WORKERS", "1")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn grounder");
-    let stdout = child.stdout.take().expect("stdout");
-    let mut line = String::new();
-    BufReader::new(stdout)
-        .read_line(&mut line)
-        .expect("read listening line");
-    let base = line
-        .trim()
-        .strip_prefix("listening on ")
-        .expect("listening line")
-        .to_string();
-    Server { child, base }
+    start_server(
+        data_dir,
+        &[("GROUNDER_PIPELINE", &format!("test:delay_ms={delay_ms}"))],
+    )
 }
 
 async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
@@ -51,14 +27,6 @@ async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-}
-
-fn signal(child: &mut Child, sig: &str) {
-    Command::new("kill")
-        .args([sig, &child.id().to_string()])
-        .status()
-        .expect("kill");
-    child.wait().expect("wait");
 }
 
 #[tokio::test]

@@ -350,7 +350,7 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
         (Some("ready"), Some(usable), Some(usable)),
         "{s}"
     );
-    let store = grounder::store::Store::open(&app.data_dir).await.unwrap();
+    let store = crate::helpers::open_store(&app.data_dir).await;
     let dets = store.detections(&id, "oracle").await.unwrap();
     let n: usize = dets.values().map(Vec::len).sum();
     assert!(n > 0, "the oracle finds the synthetic furniture");

@@ -1,0 +1,167 @@
+//! Failover on PostgreSQL with real processes: three `grounder serve` replicas on one
+//! database and one shared data dir, 60 jobs submitted round-robin through them; one
+//! replica is SIGKILLed mid-job and another SIGTERMed. Every job ends succeeded exactly
+//! once (one `succeeded` status event each), within the lease time plus the job time of
+//! the kill, and none is lost.
+
+use crate::helpers::*;
+use serde_json::Value;
+use std::time::{Duration, Instant};
+
+const JOBS: usize = 60;
+const LEASE_S: u64 = 3;
+const JOB_MS: u64 = 300;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
+    let Some(server) = pg::server() else {
+        return;
+    };
+    let started = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let url = pg::database(&server, &format!("failover-{}", uuid::Uuid::now_v7()));
+    let lease = LEASE_S.to_string();
+    let pipeline = format!("test:delay_ms={JOB_MS}");
+    let env = [
+        ("GROUNDER_DATABASE_URL", url.as_str()),
+        ("GROUNDER_LEASE_SECONDS", lease.as_str()),
+        ("GROUNDER_PIPELINE", pipeline.as_str()),
+        ("GROUNDER_WORKERS", "2"),
+    ];
+    let mut replicas: Vec<Server> = (0..3).map(|_| start_server(dir.path(), &env)).collect();
+    let c = reqwest::Client::new();
+
+    let r = c
+        .post(format!("{}/v1/scenes", replicas[0].base))
+        .header("Content-Type", "application/x-tar")
+        .body(tar_of(&tiny_scene_files(3), None))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let sid = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let mut ids = Vec::new();
+    for i in 0..JOBS {
+        let base = &replicas[i % 3].base;
+        let r = c
+            .post(format!("{base}/v1/jobs"))
+            .json(&serde_json::json!({"scene_id": sid, "query": format!("object {i}")}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(
+            r.status().as_u16(),
+            202,
+            "job {i} through replica {}",
+            i % 3
+        );
+        ids.push(
+            r.json::<Value>().await.unwrap()["id"]
+                .as_str()
+                .unwrap()
+                .to_string(),
+        );
+    }
+
+    // Kill replica 1 while it runs a job: once all three replicas hold leases.
+    let store = grounder::store::Store::connect(&url, dir.path())
+        .await
+        .unwrap();
+    let t = Instant::now();
+    loop {
+        let holders: i64 = sqlx::query_scalar(
+            "SELECT COUNT(DISTINCT lease_owner) FROM jobs WHERE status = 'running'",
+        )
+        .fetch_one(&store.pool)
+        .await
+        .unwrap();
+        if holders == 3 {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "three replicas never ran jobs at once"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    signal(&mut replicas[1].child, "-KILL");
+    let killed_at = Instant::now();
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    signal(&mut replicas[2].child, "-TERM");
+
+    // Replica 0 finishes everything.
+    let base = replicas[0].base.clone();
+    let deadline = Duration::from_secs(LEASE_S) + Duration::from_millis(JOB_MS * JOBS as u64);
+    let mut left: Vec<String> = ids.clone();
+    while !left.is_empty() {
+        let mut still = Vec::new();
+        for id in &left {
+            let j: Value = c
+                .get(format!("{base}/v1/jobs/{id}"))
+                .send()
+                .await
+                .unwrap()
+                .json()
+                .await
+                .unwrap();
+            match j["status"].as_str() {
+                Some("succeeded") => {}
+                Some("queued" | "running") => still.push(id.clone()),
+                _ => panic!("job {id} did not succeed: {j}"),
+            }
+        }
+        left = still;
+        assert!(
+            killed_at.elapsed() < deadline + Duration::from_secs(10),
+            "{} jobs still unfinished {:?} after the kill",
+            left.len(),
+            killed_at.elapsed()
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+
+    // Exactly one completion each, and the killed replica's jobs came back as attempts.
+    let store = grounder::store::Store::connect(&url, dir.path())
+        .await
+        .unwrap();
+    let rows: Vec<(String, i64)> = sqlx::query_as(
+        "SELECT job_id, COUNT(*) FROM job_events \
+         WHERE kind = 'status' AND data LIKE '%\"succeeded\"%' GROUP BY job_id",
+    )
+    .fetch_all(&store.pool)
+    .await
+    .unwrap();
+    assert_eq!(rows.len(), JOBS, "jobs with a success event");
+    assert!(
+        rows.iter().all(|(_, n)| *n == 1),
+        "a job succeeded twice: {rows:?}"
+    );
+    let retried: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE attempts > 1")
+        .fetch_one(&store.pool)
+        .await
+        .unwrap();
+    assert!(retried >= 1, "no job of the killed replica was retried");
+    eprintln!(
+        "failover: {JOBS} jobs, {retried} retried after the kill, {:?} in all",
+        started.elapsed()
+    );
+}
+
+#[tokio::test]
+async fn a_worker_replica_answers_only_its_health_endpoints() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start_server(dir.path(), &[("GROUNDER_ROLE", "worker")]);
+    let c = reqwest::Client::new();
+    let r = c.get(format!("{}/healthz", s.base)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let r = c.get(format!("{}/v1/scenes", s.base)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 404);
+    let p: Value = r.json().await.unwrap();
+    assert!(
+        p["detail"].as_str().unwrap_or("").contains("--role worker"),
+        "{p}"
+    );
+}
