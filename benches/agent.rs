@@ -20,12 +20,14 @@ use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-const STAGES: [&str; 9] = [
+const STAGES: [&str; 11] = [
     "query_analysis",
     "preselection",
     "stitching",
     "image_selection",
     "detection",
+    "candidates",
+    "mark_selection",
     "instance_selection",
     "segmentation",
     "projection",
@@ -123,7 +125,10 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
             })
             .max_by(|a, b| a.1.total_cmp(&b.1));
         let Some((frame, _)) = best else { continue };
-        let many = dets[&frame].iter().filter(|d| d.label == class).count() > 1;
+        // With candidates beside the detections (the default since #18), the VLM always
+        // picks among the marks; mark 0 is the first detection.
+        let many = dets[&frame].iter().filter(|d| d.label == class).count() > 1
+            || grounder::vision::candidates::CandidateParams::default().beside_detections;
         let mut replies = vec![
             Reply::ok(
                 json!({"target_class": class, "attributes": [], "conditions": []}).to_string(),
