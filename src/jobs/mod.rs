@@ -4,6 +4,7 @@
 pub mod exports;
 pub mod indexing;
 pub mod ingest;
+pub mod redact;
 pub mod retention;
 pub mod scene_cache;
 pub mod sweep;
