@@ -73,7 +73,7 @@ impl utoipa::Modify for BinaryUploads {
                     .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
                     .build();
                 let mut content = Content::new(Some(schema));
-                if path == "/v1/scenes" && media == "application/x-tar" {
+                if path == "/v1/scenes" && media == "application/octet-stream" {
                     content.example = upload_example();
                 }
                 body.content.insert(media.to_string(), content);
@@ -82,7 +82,8 @@ impl utoipa::Modify for BinaryUploads {
     }
 }
 
-/// The example of an archive upload: a tar (all ASCII, so that it can stand in the YAML)
+/// The example of an archive upload (on `application/octet-stream`, which generic clients
+/// can send as bytes; the tar is recognised by its first bytes): a tar (all ASCII, so that it can stand in the YAML)
 /// holding only `scene/README.txt`. The server unpacks it and answers 422 `no_scene`, as
 /// documented: a real scene carries JPEG and PNG frames, which no text example can.
 fn upload_example() -> Option<serde_json::Value> {
