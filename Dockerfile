@@ -32,5 +32,9 @@ USER grounder
 WORKDIR /opt/grounder
 VOLUME ["/data"]
 EXPOSE 8080
+# Liveness from inside the container, with what the slim image has (bash, no curl):
+# GET /healthz on the port GROUNDER_ADDR names.
+HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
+  CMD ["bash", "-c", "exec 3<>/dev/tcp/127.0.0.1/${GROUNDER_ADDR##*:} && printf 'GET /healthz HTTP/1.0\\r\\nHost: localhost\\r\\n\\r\\n' >&3 && head -n1 <&3 | grep -q ' 200 '"]
 ENTRYPOINT ["grounder"]
 CMD ["serve"]

@@ -144,6 +144,21 @@ impl VlmGrounder {
     }
 }
 
+/// Checked between the pipeline's stages: a canceled job stops before `next` reads its
+/// scene again (its scene may be deleted once the cancel is answered).
+pub(crate) fn still_wanted(
+    cancel: &tokio_util::sync::CancellationToken,
+    next: &str,
+) -> Result<(), JobFailure> {
+    if cancel.is_cancelled() {
+        return Err(JobFailure::new(
+            "canceled",
+            format!("canceled before {next}"),
+        ));
+    }
+    Ok(())
+}
+
 /// Milliseconds since `t`.
 pub(crate) fn ms(t: Instant) -> f64 {
     (t.elapsed().as_secs_f64() * 1e6).round() / 1e3
@@ -211,14 +226,19 @@ impl VlmGrounder {
     ) -> Result<GroundingOutput, JobFailure> {
         let analysis = query_analysis::run(self, ctx, budget, log).await?;
         let slot = self.compute_slot(ctx).await?;
+        still_wanted(&ctx.cancel, "room layout")?;
         let layout = projection::room_layout(self, ctx, &analysis.target_class).await?;
+        still_wanted(&ctx.cancel, "view pre-selection")?;
         let pre = preselect::run(self, ctx, &analysis, layout.as_ref()).await?;
+        still_wanted(&ctx.cancel, "stitching")?;
         let grids = stitching::run(self, ctx, &pre).await?;
         drop(slot);
+        still_wanted(&ctx.cancel, "grounding")?;
         let choice = grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await?;
         // The grids' JPEGs are on disk as artifacts; the rest of the job does not need them.
         drop(grids);
         let slot = self.compute_slot(ctx).await?;
+        still_wanted(&ctx.cancel, "projection")?;
         let projected =
             projection::run(self, ctx, &analysis.target_class, &pre, &choice, layout).await?;
         drop(slot);
@@ -263,5 +283,18 @@ impl VlmGrounder {
             bbox: projected.bbox,
             extra,
         })
+    }
+}
+
+#[cfg(test)]
+mod cancel_tests {
+    #[test]
+    fn a_canceled_job_stops_before_the_next_stage() {
+        let t = tokio_util::sync::CancellationToken::new();
+        assert!(super::still_wanted(&t, "stitching").is_ok());
+        t.cancel();
+        let e = super::still_wanted(&t, "stitching").expect_err("stopped");
+        assert_eq!(e.code, "canceled");
+        assert!(e.detail.contains("stitching"), "{}", e.detail);
     }
 }

@@ -11,6 +11,19 @@ use crate::vlm::json::{parse_query_analysis, QueryAnalysis};
 use crate::vlm::prompts::ReplyKind;
 use crate::vlm::{CallBudget, Message, VlmStep};
 
+/// Most query analyses kept; beyond it an entry makes room for a new one.
+pub const CACHE_CAP: usize = 4096;
+
+/// Keep `a` under `key` in a cache of at most `cap` entries (one entry, any, makes room).
+fn remember<V>(cache: &mut std::collections::HashMap<String, V>, key: String, a: V, cap: usize) {
+    if cache.len() >= cap.max(1) && !cache.contains_key(&key) {
+        if let Some(k) = cache.keys().next().cloned() {
+            cache.remove(&k);
+        }
+    }
+    cache.insert(key, a);
+}
+
 /// Lower case with runs of white space folded: the cache key.
 pub fn normalise(query: &str) -> String {
     query
@@ -79,7 +92,7 @@ pub async fn run(
                 a.target_class = a.target_class.trim().to_lowercase();
                 exchanges.push(json!({"sent": sent, "reply": rec}));
                 if let Ok(mut c) = g.analysis_cache.lock() {
-                    c.insert(key, a.clone());
+                    remember(&mut c, key, a.clone(), CACHE_CAP);
                 }
                 step(
                     ctx,
@@ -130,5 +143,20 @@ mod tests {
     #[test]
     fn normalises_case_and_spaces() {
         assert_eq!(super::normalise("  The  Red\tChair "), "the red chair");
+    }
+}
+
+#[cfg(test)]
+mod cache_tests {
+    #[test]
+    fn the_analysis_cache_stays_under_its_cap() {
+        let mut c = std::collections::HashMap::new();
+        for i in 0..100 {
+            super::remember(&mut c, format!("query {i}"), i, 8);
+            assert!(c.len() <= 8, "{} entries", c.len());
+        }
+        assert_eq!(c.get("query 99"), Some(&99), "the newest is kept");
+        super::remember(&mut c, "query 99".into(), 7, 8);
+        assert_eq!((c.len(), c.get("query 99")), (8, Some(&7)));
     }
 }

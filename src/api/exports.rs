@@ -75,6 +75,7 @@ pub async fn object_ply(
     Ok((
         [
             (header::CONTENT_TYPE, PLY.to_string()),
+            (header::X_CONTENT_TYPE_OPTIONS, "nosniff".to_string()),
             (
                 header::CONTENT_DISPOSITION,
                 format!("attachment; filename=\"object-{id}.ply\""),
@@ -113,7 +114,13 @@ pub async fn mask_png(
         &format!("mask for image {frame}"),
     )
     .await?;
-    Ok(([(header::CONTENT_TYPE, "image/png")], bytes))
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::X_CONTENT_TYPE_OPTIONS, "nosniff"),
+        ],
+        bytes,
+    ))
 }
 
 #[derive(Debug, Deserialize, utoipa::IntoParams)]

@@ -520,5 +520,12 @@ pub async fn artifact(
     } else {
         "image/jpeg"
     };
-    Ok(([(header::CONTENT_TYPE, ct)], bytes))
+    // Browsers must not guess another type from an artifact's bytes.
+    Ok((
+        [
+            (header::CONTENT_TYPE, ct),
+            (header::X_CONTENT_TYPE_OPTIONS, "nosniff"),
+        ],
+        bytes,
+    ))
 }

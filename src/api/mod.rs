@@ -136,7 +136,7 @@ async fn fallback(req: Request) -> ApiError {
 
 async fn track_http(State(state): State<AppState>, req: Request, next: Next) -> Response {
     let started = Instant::now();
-    let method = req.method().to_string();
+    let method = method_label(req.method()).to_string();
     let route = req
         .extensions()
         .get::<MatchedPath>()
@@ -153,4 +153,33 @@ async fn track_http(State(state): State<AppState>, req: Request, next: Next) -> 
         })
         .observe(started.elapsed().as_secs_f64());
     resp
+}
+
+/// A metric label for a request method: the standard ones, anything else `other` (a
+/// client must not mint label values without bound).
+fn method_label(m: &axum::http::Method) -> &'static str {
+    use axum::http::Method;
+    match *m {
+        Method::GET => "GET",
+        Method::POST => "POST",
+        Method::PUT => "PUT",
+        Method::DELETE => "DELETE",
+        Method::PATCH => "PATCH",
+        Method::HEAD => "HEAD",
+        Method::OPTIONS => "OPTIONS",
+        _ => "other",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn unknown_methods_share_one_metric_label() {
+        use axum::http::Method;
+        assert_eq!(super::method_label(&Method::GET), "GET");
+        assert_eq!(super::method_label(&Method::DELETE), "DELETE");
+        let odd = Method::from_bytes(b"XYZZY123").expect("a token");
+        assert_eq!(super::method_label(&odd), "other");
+        assert_eq!(super::method_label(&Method::TRACE), "other");
+    }
 }

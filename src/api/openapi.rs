@@ -72,11 +72,32 @@ impl utoipa::Modify for BinaryUploads {
                     .schema_type(Type::String)
                     .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
                     .build();
-                body.content
-                    .insert(media.to_string(), Content::new(Some(schema)));
+                let mut content = Content::new(Some(schema));
+                if path == "/v1/scenes" && media == "application/octet-stream" {
+                    content.example = upload_example();
+                }
+                body.content.insert(media.to_string(), content);
             }
         }
     }
+}
+
+/// The example of an archive upload (on `application/octet-stream`, which generic clients
+/// can send as bytes; the tar is recognised by its first bytes): a tar (all ASCII, so that it can stand in the YAML)
+/// holding only `scene/README.txt`. The server unpacks it and answers 422 `no_scene`, as
+/// documented: a real scene carries JPEG and PNG frames, which no text example can.
+fn upload_example() -> Option<serde_json::Value> {
+    let text = b"A scene archive holds color/, depth/, pose/ and intrinsic/ (FORMATS.md).\n";
+    let mut b = tar::Builder::new(Vec::new());
+    let mut h = tar::Header::new_ustar();
+    h.set_path("scene/README.txt").ok()?;
+    h.set_size(text.len() as u64);
+    h.set_mode(0o644);
+    h.set_mtime(0);
+    h.set_cksum();
+    b.append(&h, &text[..]).ok()?;
+    let bytes = b.into_inner().ok()?;
+    String::from_utf8(bytes).ok().map(serde_json::Value::String)
 }
 
 /// The document as YAML.

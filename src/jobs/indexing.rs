@@ -123,7 +123,12 @@ pub fn hook(
             }
             let (status, err) = match outcome {
                 Ok(()) => ("ready", None),
-                Err(e) => ("failed", Some(format!("{e:#}"))),
+                Err(e) => {
+                    // The log keeps the full reason; the scene (and its jobs) name files only.
+                    tracing::warn!(scene = %scene_id, "indexing failed: {e:#}");
+                    let why = super::redact::without_paths(&format!("{e:#}"));
+                    ("failed", Some(why))
+                }
             };
             let ended = store.end_index_attempts(&scene_id).await;
             if let Err(e) = ended.and(

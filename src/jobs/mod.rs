@@ -5,6 +5,7 @@ pub mod exports;
 pub mod indexing;
 pub mod ingest;
 pub mod lease;
+pub mod redact;
 pub mod retention;
 pub mod scene_cache;
 pub mod sweep;

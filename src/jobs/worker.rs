@@ -431,7 +431,7 @@ impl JobSystem {
                 } else {
                     "failed"
                 };
-                let err = json!({"code": f.code, "detail": f.detail});
+                let err = error_json(&job.id, &f);
                 self.store
                     .finish_job(&job.id, JobStatus::Failed, None, Some(&err))
                     .await
@@ -451,6 +451,17 @@ impl JobSystem {
             })
             .observe(started.elapsed().as_secs_f64());
     }
+}
+
+/// A failure as the job's `error` object. Its detail names files, not their folders: a
+/// path in it (a scene's or model's file, a data dir) is cut to its last component (the
+/// log keeps the full text).
+pub fn error_json(job_id: &str, f: &JobFailure) -> Value {
+    let detail = super::redact::without_paths(&f.detail);
+    if detail != f.detail {
+        tracing::warn!(job = %job_id, "job failed: {}: {}", f.code, f.detail);
+    }
+    json!({"code": f.code, "detail": detail})
 }
 
 /// The API's `result` object: `box` with min, max, centre, size and its 8 corners (corner
@@ -475,5 +486,26 @@ impl Drop for AbortOnDrop {
         if let Some(t) = self.0.take() {
             t.abort();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_job_error_names_files_not_their_folders() {
+        let f = JobFailure::new(
+            "storage_error",
+            "cannot read /srv/grounder/data/scenes/0193/color/12.jpg: No such file",
+        );
+        let v = error_json("j", &f);
+        assert_eq!(v["code"], "storage_error");
+        assert_eq!(v["detail"], "cannot read 12.jpg: No such file");
+        let plain = JobFailure::new("no_target_found", "no chair in view /v1/jobs");
+        assert_eq!(
+            error_json("j", &plain)["detail"],
+            "no chair in view /v1/jobs"
+        );
     }
 }

@@ -4,6 +4,8 @@
 
 mod append_crash;
 mod backpressure;
+mod fuzz;
+mod headers;
 mod limits;
 mod watchdog;
 
@@ -22,7 +24,7 @@ fn png_chunk(kind: &[u8; 4], data: &[u8]) -> Vec<u8> {
 }
 
 /// A tiny PNG whose header claims `w` x `h` 16-bit grey pixels.
-fn png_claiming(w: u32, h: u32) -> Vec<u8> {
+pub(super) fn png_claiming(w: u32, h: u32) -> Vec<u8> {
     let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
     let mut ihdr = w.to_be_bytes().to_vec();
     ihdr.extend_from_slice(&h.to_be_bytes());
@@ -36,7 +38,7 @@ fn png_claiming(w: u32, h: u32) -> Vec<u8> {
 }
 
 /// A valid JPEG with the size in its frame header rewritten to `w` x `h`.
-fn jpeg_claiming(original: &[u8], w: u16, h: u16) -> Vec<u8> {
+pub(super) fn jpeg_claiming(original: &[u8], w: u16, h: u16) -> Vec<u8> {
     let mut out = original.to_vec();
     let sof = (0..out.len() - 1)
         .find(|&i| out[i] == 0xFF && (0xC0..=0xC2).contains(&out[i + 1]))
@@ -238,7 +240,7 @@ async fn jobs_queued_on_a_scene_that_fails_indexing_fail_with_it() {
 }
 
 /// A tar header of `kind` declaring `size` bytes, followed by `body`.
-fn tar_header(kind: u8, name: &str, size: u64, body: &[u8]) -> Vec<u8> {
+pub(super) fn tar_header(kind: u8, name: &str, size: u64, body: &[u8]) -> Vec<u8> {
     let mut h = [0u8; 512];
     h[..name.len()].copy_from_slice(name.as_bytes());
     h[100..107].copy_from_slice(b"0000644");
