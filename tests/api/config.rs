@@ -175,3 +175,42 @@ fn every_key_of_the_effective_configuration_is_in_the_reference() {
         "keys missing from docs/configuration.md: {missing:?}"
     );
 }
+
+#[test]
+fn every_key_the_readme_names_is_a_key_of_the_configuration() {
+    let o = run(&["config"], &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    let value: toml::Value = toml::from_str(&text).unwrap();
+    let mut keys = Vec::new();
+    leaf_keys("", &value, &mut keys);
+    keys.extend(text.lines().filter_map(|l| {
+        l.strip_prefix("# ")
+            .and_then(|r| r.split_once(" is not set"))
+            .map(|(k, _)| k.to_string())
+    }));
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    // The first cell of each row of the README's configuration table.
+    let section = readme
+        .split("\n| key | default | what |")
+        .nth(1)
+        .expect("the README has a configuration table");
+    let named: Vec<String> = section
+        .lines()
+        .skip(2)
+        .take_while(|l| l.starts_with('|'))
+        .filter_map(|l| l.split('|').nth(1))
+        .flat_map(|cell| {
+            cell.split(',')
+                .map(|k| k.trim().trim_matches('`').to_string())
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    assert!(named.len() >= 10, "too few README keys read: {named:?}");
+    let unknown: Vec<_> = named.iter().filter(|k| !keys.contains(k)).collect();
+    assert!(
+        unknown.is_empty(),
+        "README names keys the service does not have: {unknown:?}"
+    );
+}

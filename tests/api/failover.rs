@@ -1,5 +1,6 @@
 //! Failover on PostgreSQL with real processes: three `grounder serve` replicas on one
-//! database and one shared data dir, 60 jobs submitted round-robin through them; one
+//! database and either one shared data dir or each its own data dir on one S3 bucket
+//! (a moto server), 60 jobs submitted round-robin through them; one
 //! replica is SIGKILLed mid-job and another SIGTERMed. Every job ends succeeded exactly
 //! once (one `succeeded` status event each), within the lease time plus the job time of
 //! the kill, and none is lost.
@@ -17,18 +18,45 @@ async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
     let Some(server) = pg::server() else {
         return;
     };
-    let started = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let url = pg::database(&server, &format!("failover-{}", uuid::Uuid::now_v7()));
+    let shared = [dir.path(), dir.path(), dir.path()];
+    failover(&server, shared, &[]).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_replicas_on_one_bucket_lose_no_job_when_one_is_killed_and_one_stopped() {
+    let Some(server) = pg::server() else {
+        return;
+    };
+    let moto = crate::storage::Moto::start().await;
+    moto.create_bucket("failover").await;
+    let mut env = moto.env();
+    env.push(("GROUNDER_STORAGE".into(), "s3://failover/replicas".into()));
+    // Each replica its own data dir: the scene reaches replicas 1 and 2 through the bucket.
+    let dirs: Vec<tempfile::TempDir> = (0..3).map(|_| tempfile::tempdir().unwrap()).collect();
+    failover(
+        &server,
+        [dirs[0].path(), dirs[1].path(), dirs[2].path()],
+        &env,
+    )
+    .await;
+}
+
+/// The failover run: replicas on `dirs` with `extra` settings (see the module docs).
+async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, String)]) {
+    let started = Instant::now();
+    let dir = dirs[0];
+    let url = pg::database(server, &format!("failover-{}", uuid::Uuid::now_v7()));
     let lease = LEASE_S.to_string();
     let pipeline = format!("test:delay_ms={JOB_MS}");
-    let env = [
+    let mut env = vec![
         ("GROUNDER_DATABASE_URL", url.as_str()),
         ("GROUNDER_LEASE_SECONDS", lease.as_str()),
         ("GROUNDER_PIPELINE", pipeline.as_str()),
         ("GROUNDER_WORKERS", "2"),
     ];
-    let mut replicas: Vec<Server> = (0..3).map(|_| start_server(dir.path(), &env)).collect();
+    env.extend(extra.iter().map(|(k, v)| (k.as_str(), v.as_str())));
+    let mut replicas: Vec<Server> = dirs.iter().map(|d| start_server(d, &env)).collect();
     let c = reqwest::Client::new();
 
     let r = c
@@ -67,9 +95,7 @@ async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
     }
 
     // Kill replica 1 while it runs a job: once all three replicas hold leases.
-    let store = grounder::store::Store::connect(&url, dir.path())
-        .await
-        .unwrap();
+    let store = grounder::store::Store::connect(&url, dir).await.unwrap();
     let t = Instant::now();
     loop {
         let holders: i64 = sqlx::query_scalar(
@@ -124,9 +150,7 @@ async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
     }
 
     // Exactly one completion each, and the killed replica's jobs came back as attempts.
-    let store = grounder::store::Store::connect(&url, dir.path())
-        .await
-        .unwrap();
+    let store = grounder::store::Store::connect(&url, dir).await.unwrap();
     let rows: Vec<(String, i64)> = sqlx::query_as(
         "SELECT job_id, COUNT(*) FROM job_events \
          WHERE kind = 'status' AND data LIKE '%\"succeeded\"%' GROUP BY job_id",
@@ -139,6 +163,13 @@ async fn three_replicas_lose_no_job_when_one_is_killed_and_one_stopped() {
         rows.iter().all(|(_, n)| *n == 1),
         "a job succeeded twice: {rows:?}"
     );
+    // Replicas on data dirs of their own ran jobs on a scene they got from the bucket.
+    for d in dirs.iter().filter(|d| **d != dir) {
+        assert!(
+            d.join("scenes").join(&sid).is_dir(),
+            "a replica on its own data dir never fetched the scene"
+        );
+    }
     let retried: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM jobs WHERE attempts > 1")
         .fetch_one(&store.pool)
         .await

@@ -14,7 +14,7 @@ use grounder::storage::Storage;
 use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
 
 /// A moto server on a free port, killed when dropped.
-struct Moto {
+pub(crate) struct Moto {
     child: Child,
     port: u16,
 }
@@ -27,7 +27,7 @@ impl Drop for Moto {
 }
 
 impl Moto {
-    async fn start() -> Moto {
+    pub(crate) async fn start() -> Moto {
         let port = std::net::TcpListener::bind("127.0.0.1:0")
             .and_then(|l| l.local_addr())
             .expect("free port")
@@ -57,7 +57,7 @@ impl Moto {
     }
 
     /// The AWS_* settings that point the object store client at this server.
-    fn env(&self) -> Vec<(String, String)> {
+    pub(crate) fn env(&self) -> Vec<(String, String)> {
         [
             ("AWS_ENDPOINT_URL", self.endpoint()),
             ("AWS_REGION", "us-east-1".into()),
@@ -70,7 +70,7 @@ impl Moto {
         .collect()
     }
 
-    async fn create_bucket(&self, name: &str) {
+    pub(crate) async fn create_bucket(&self, name: &str) {
         let r = reqwest::Client::new()
             .put(format!("{}/{name}", self.endpoint()))
             .send()
