@@ -2,20 +2,24 @@
 # Replicas on one PostgreSQL (issue 22): jobs/minute with 1, 2 and 3 worker replicas behind
 # one API replica, then status polling (wrk on GET /v1/jobs/{id}) through one replica on
 # PostgreSQL and on SQLite. Everything on this machine, so the job figure measures the
-# queue's coordination overhead, not a speed-up. Jobs run the test pipeline (a fixed
-# delay per job) so that the figure is about the queue, not the VLM or the vision models.
+# queue's coordination overhead, not a speed-up. By default jobs run the test pipeline (a
+# fixed delay per job) so that the figure is about the queue alone; VLM=oracle runs the
+# whole method instead (`grounder oracle-vlm` as the VLM, the oracle detector).
 #
 # Starts its own throwaway PostgreSQL (initdb + pg_ctl from the Debian package
 # `postgresql`, as the postgres user when run as root) and removes it on exit.
 # Needs curl, jq, wrk.
 #
 # Environment (defaults in brackets; JOBS at most 500): GROUNDER_BIN [target/debug/grounder, built if
-# missing], JOBS [120], JOB_MS [200], WORKERS [2] (per worker replica), DURATION [10s],
+# missing], VLM [test: the test pipeline; oracle: the method with the oracle VLM],
+# JOBS [120], JOB_MS [200] (test pipeline), WORKERS [2] (per worker replica), DURATION [10s],
 # CONNECTIONS [32], PORT [18300] (first port; the replicas take the next ones).
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 JOBS=${JOBS:-120}
 JOB_MS=${JOB_MS:-200}
+VLM=${VLM:-test}
+[[ $VLM == test || $VLM == oracle ]] || { echo "error: VLM must be test or oracle (got $VLM)" >&2; exit 1; }
 WORKERS=${WORKERS:-2}
 DURATION=${DURATION:-10s}
 CONNECTIONS=${CONNECTIONS:-32}
@@ -36,7 +40,7 @@ PIDS=()
 AS_PG=()
 [[ $(id -u) == 0 ]] && AS_PG=(runuser -u postgres --)
 cleanup() {
-    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
+    for p in "${PIDS[@]}" ${ORACLE_PID:-}; do kill "$p" 2>/dev/null || true; done
     wait 2>/dev/null || true
     [[ -d "$WORK/pg/data" ]] && "${AS_PG[@]}" "$PGBIN/pg_ctl" -D "$WORK/pg/data" stop -m immediate >/dev/null 2>&1 || true
     rm -rf "$WORK"
@@ -56,7 +60,7 @@ createdb() { "$PGBIN/psql" -q "$PG/postgres" -c "CREATE DATABASE $1" >/dev/null;
 serve() {
     local port=$1 data=$2
     shift 2
-    env GROUNDER_PIPELINE="test:delay_ms=$JOB_MS" GROUNDER_DETECTOR=none GROUNDER_LOG=warn "$@" \
+    env "${METHOD_ENV[@]}" GROUNDER_LOG=warn "$@" \
         "$GROUNDER_BIN" serve --addr "127.0.0.1:$port" --data-dir "$data" >"$WORK/serve-$port.log" 2>&1 &
     PIDS+=($!)
     for _ in $(seq 300); do
@@ -67,14 +71,28 @@ serve() {
 }
 stop_all() {
     for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
-    wait 2>/dev/null || true
+    for p in "${PIDS[@]}"; do wait "$p" 2>/dev/null || true; done
     PIDS=()
 }
 
-"$GROUNDER_BIN" synth --out "$WORK/synth" --frames 4 --color-size 320x240 --depth-size 160x120 --tar >/dev/null
+"$GROUNDER_BIN" synth --out "$WORK/synth" --frames 4 --color-size 320x240 --depth-size 160x120 --tar \
+    --dataset "$WORK/ds" >/dev/null
 TAR="$WORK/synth/scene_synth_0000.tar"
+QUERY=$(head -1 "$WORK/ds/queries.jsonl" | jq -r .text)
+if [[ $VLM == oracle ]]; then
+    "$GROUNDER_BIN" oracle-vlm --addr "127.0.0.1:$((PORT + 98))" --dataset "$WORK/ds" --scenes "$WORK/synth" \
+        >"$WORK/oracle.log" 2>&1 &
+    ORACLE_PID=$!
+    for _ in $(seq 300); do grep -q "listening on" "$WORK/oracle.log" && break; sleep 0.1; done
+    METHOD_ENV=(GROUNDER_DETECTOR=oracle GROUNDER_VLM_BASE_URL="http://127.0.0.1:$((PORT + 98))/v1"
+        GROUNDER_VLM_MODEL=grounder-oracle GROUNDER_VLM_API_KEY=bench)
+    JOB_WHAT="the method with the oracle VLM"
+else
+    METHOD_ENV=(GROUNDER_PIPELINE="test:delay_ms=$JOB_MS" GROUNDER_DETECTOR=none)
+    JOB_WHAT="test jobs of $JOB_MS ms"
+fi
 upload() { curl -sf --data-binary @"$TAR" -H 'Content-Type: application/x-tar' "$1/v1/scenes" | jq -r .id; }
-submit() { curl -sf -H 'Content-Type: application/json' -d "{\"scene_id\":\"$2\",\"query\":\"the chair\"}" "$1/v1/jobs" | jq -r .id; }
+submit() { jq -n --arg s "$2" --arg q "$QUERY" '{scene_id: $s, query: $q}' | curl -sf -H 'Content-Type: application/json' -d @- "$1/v1/jobs" | jq -r .id; }
 wait_ready() {
     for _ in $(seq 300); do
         [[ $(curl -sf "$1/v1/scenes/$2" | jq -r .status) == ready ]] && return 0
@@ -83,7 +101,7 @@ wait_ready() {
     echo "error: scene not ready" >&2; exit 1
 }
 
-echo "== jobs/minute: $JOBS jobs of $JOB_MS ms, $WORKERS workers per worker replica, one API replica (debug build unless GROUNDER_BIN says otherwise)"
+echo "== jobs/minute: $JOBS $JOB_WHAT, $WORKERS workers per worker replica, one API replica (debug build unless GROUNDER_BIN says otherwise)"
 for n in 1 2 3; do
     url=$(createdb "jobs_$n")
     data="$WORK/data-$n"
@@ -103,8 +121,7 @@ for n in 1 2 3; do
     done
     end=$(date +%s.%N)
     awk -v n="$n" -v j="$JOBS" -v s="$start" -v e="$end" -v w="$WORKERS" -v ms="$JOB_MS" 'BEGIN {
-        t = e - s; ideal = n * w * 60000 / ms;
-        printf "%d worker replica(s): %d jobs in %.1f s = %.0f jobs/min (ideal %d workers x %d ms: %.0f)\n", n, j, t, j * 60 / t, n * w, ms, ideal }'
+        t = e - s; printf "%d worker replica(s): %d jobs in %.1f s = %.0f jobs/min\n", n, j, t, j * 60 / t }'
     stop_all
 done
 
