@@ -174,12 +174,18 @@ pub fn write(
         for e in rd.flatten() {
             let n = e.file_name();
             let n = n.to_string_lossy();
-            if n.starts_with("depth-") && n.ends_with(".u16") && n != name {
+            if is_depth_file(&n) && n != name {
                 let _ = std::fs::remove_file(e.path());
             }
         }
     }
     Ok(())
+}
+
+/// True for the name of a scene's mapped depth file: a cache each process builds from the
+/// stored depth, never copied between replicas.
+pub fn is_depth_file(name: &str) -> bool {
+    name.starts_with("depth-") && name.ends_with(".u16") && !name.contains('/')
 }
 
 #[cfg(test)]

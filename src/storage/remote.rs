@@ -126,14 +126,15 @@ impl Remote {
     }
 
     /// Upload the files of local folder `dir` under folder `rel` that the bucket lacks (or
-    /// holds with another size); `*.tmp` files (half-written) are skipped. Returns how many
-    /// were uploaded.
+    /// holds with another size); `*.tmp` files (half-written) and the mapped depth file (a
+    /// cache every replica builds from the database) are skipped. Returns how many were
+    /// uploaded.
     pub async fn push_dir(&self, dir: &Path, rel: &str) -> Result<usize, StorageError> {
         let have = self.list(rel).await?;
         let files = local_files(dir)?;
         let mut n = 0;
         for (name, size) in files {
-            if have.get(&name) == Some(&size) {
+            if have.get(&name) == Some(&size) || crate::scene::depth_file::is_depth_file(&name) {
                 continue;
             }
             let bytes = tokio::fs::read(dir.join(&name))

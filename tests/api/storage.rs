@@ -140,7 +140,9 @@ async fn a_scene_uploaded_on_replica_a_is_fetched_from_the_bucket_by_replica_b()
     let colour = local_a.iter().filter(|(n, _)| n.starts_with("color/"));
     assert_eq!(colour.count(), 3, "{local_a:?}");
     assert!(in_bucket.contains_key("color/0.jpg"), "{in_bucket:?}");
-    for (name, size) in local_a.iter().filter(|(n, _)| !n.starts_with("points_")) {
+    // Local caches (the points export, the mapped depth file) are each replica's own.
+    let cache = |n: &str| n.starts_with("points_") || grounder::scene::depth_file::is_depth_file(n);
+    for (name, size) in local_a.iter().filter(|(n, _)| !cache(n)) {
         assert_eq!(in_bucket.get(name), Some(size), "{name} in the bucket");
     }
     let a_frame = std::fs::read(dir_a.path().join("scenes").join(&id).join("color/1.jpg"))
@@ -164,7 +166,7 @@ async fn a_scene_uploaded_on_replica_a_is_fetched_from_the_bucket_by_replica_b()
     let local_b: std::collections::HashMap<_, _> = grounder::storage::local_files(&b_scene)
         .expect("B's cached files")
         .into_iter()
-        .filter(|(n, _)| !n.starts_with("points_"))
+        .filter(|(n, _)| !cache(n))
         .collect();
     assert_eq!(local_b, in_bucket, "B's cache holds what the bucket holds");
     assert_eq!(
