@@ -3,7 +3,7 @@
 //! scenes waiting to be indexed beyond the bound refuse more uploads the same way. The
 //! server keeps answering `/healthz` throughout.
 
-use super::vm_hwm_kb;
+use super::{assert_peak_growth_under, vm_hwm_kb};
 use crate::crash::scene_with_masks;
 use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
 use serde_json::Value;
@@ -80,13 +80,7 @@ async fn a_stalled_body_is_cut_off_with_408_and_a_full_house_answers_503() {
         .map(|d| d.flatten().map(|e| e.path()).collect())
         .unwrap_or_default();
     assert!(leftovers.is_empty(), "{leftovers:?}");
-    if let (Some(a), Some(b)) = (before, vm_hwm_kb()) {
-        assert!(
-            b.saturating_sub(a) < 200_000,
-            "peak memory grew by {} kB",
-            b - a
-        );
-    }
+    assert_peak_growth_under(before, 200_000);
     app.stop().await;
 }
 

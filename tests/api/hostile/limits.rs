@@ -1,7 +1,7 @@
 //! Limits on what is stored: a scene over the frames x pixels cap (at upload and at
 //! append), a data dir short of free space, and finished jobs past their retention.
 
-use super::vm_hwm_kb;
+use super::{assert_peak_growth_under, vm_hwm_kb};
 use crate::frames::more_frames;
 use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
 use serde_json::Value;
@@ -69,13 +69,7 @@ async fn a_scene_over_the_frames_x_pixels_cap_is_refused_at_upload_and_at_append
     assert_eq!(now["frames"], 2, "nothing was appended: {now}");
     let colour = app.data_dir.join("scenes").join(id).join("color");
     assert_eq!(std::fs::read_dir(colour).map(|d| d.count()).ok(), Some(2));
-    if let (Some(a), Some(b)) = (before, vm_hwm_kb()) {
-        assert!(
-            b.saturating_sub(a) < 200_000,
-            "peak memory grew by {} kB",
-            b - a
-        );
-    }
+    assert_peak_growth_under(before, 200_000);
     app.stop().await;
 }
 

@@ -50,6 +50,24 @@ pub(super) fn jpeg_claiming(original: &[u8], w: u16, h: u16) -> Vec<u8> {
 }
 
 /// Peak resident memory of this process in kB (Linux), if it can be read.
+/// Fail when the process's peak memory grew by `kb` or more since `before` (VmHWM, kB).
+pub(super) fn assert_peak_growth_under(before: Option<u64>, kb: u64) {
+    if let (Some(a), Some(b)) = (before, vm_hwm_kb()) {
+        assert!(b.saturating_sub(a) < kb, "peak memory grew by {} kB", b - a);
+    }
+}
+
+/// Fail unless the server still answers `/healthz` with 200 (after `what`).
+pub(super) async fn assert_still_answers(app: &TestApp, what: &str) {
+    let health = app
+        .client
+        .get(app.url("/healthz"))
+        .send()
+        .await
+        .expect("the server still answers");
+    assert_eq!(health.status().as_u16(), 200, "{what}");
+}
+
 pub(super) fn vm_hwm_kb() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
@@ -110,22 +128,10 @@ async fn image_dimension_bombs_are_refused_and_the_server_lives() {
             detail.contains("max_image_pixels") && detail.contains("frame"),
             "{what}: the detail names the limit and the entry: {detail}"
         );
-        let health = app
-            .client
-            .get(app.url("/healthz"))
-            .send()
-            .await
-            .expect("the server still answers");
-        assert_eq!(health.status().as_u16(), 200, "{what}");
+        assert_still_answers(&app, what).await;
     }
-    if let (Some(a), Some(b)) = (before, vm_hwm_kb()) {
-        // The bombs declare gigabytes to terabytes; refusing them costs next to nothing.
-        assert!(
-            b.saturating_sub(a) < 200_000,
-            "peak memory grew by {} kB",
-            b - a
-        );
-    }
+    // The bombs declare gigabytes to terabytes; refusing them costs next to nothing.
+    assert_peak_growth_under(before, 200_000);
     let (_, list) = app.get_json("/v1/scenes").await;
     assert_eq!(list["scenes"].as_array().map(Vec::len), Some(0));
     app.stop().await;
@@ -317,21 +323,9 @@ async fn archive_metadata_bombs_are_refused_from_their_headers() {
         );
         let detail = p["detail"].as_str().unwrap_or("");
         assert!(detail.contains(needle), "{what}: {detail}");
-        let health = app
-            .client
-            .get(app.url("/healthz"))
-            .send()
-            .await
-            .expect("the server still answers");
-        assert_eq!(health.status().as_u16(), 200, "{what}");
+        assert_still_answers(&app, what).await;
     }
-    if let (Some(a), Some(b)) = (before, vm_hwm_kb()) {
-        assert!(
-            b.saturating_sub(a) < 200_000,
-            "peak memory grew by {} kB",
-            b - a
-        );
-    }
+    assert_peak_growth_under(before, 200_000);
     let leftovers: Vec<_> = std::fs::read_dir(dir.path().join("tmp"))
         .map(|d| d.flatten().map(|e| e.path()).collect())
         .unwrap_or_default();
