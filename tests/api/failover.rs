@@ -115,6 +115,7 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
     }
     signal(&mut replicas[1].child, "-KILL");
     let killed_at = Instant::now();
+    let killed_wall = time::OffsetDateTime::now_utc();
     tokio::time::sleep(Duration::from_millis(400)).await;
     signal(&mut replicas[2].child, "-TERM");
 
@@ -175,8 +176,29 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
         .await
         .unwrap();
     assert!(retried >= 1, "no job of the killed replica was retried");
+    // Each retried job finished within the lease (its last renewal came before the kill),
+    // one sweep period, its wait for a worker and its own run (queued jobs are claimed in
+    // order, so a requeued one is next), plus slack for two loaded cores.
+    let bound = Duration::from_millis(LEASE_S * 1000 + LEASE_S * 1000 / 3 + 2 * JOB_MS)
+        + Duration::from_secs(3);
+    let finished: Vec<String> =
+        sqlx::query_scalar("SELECT finished_at FROM jobs WHERE attempts > 1")
+            .fetch_all(&store.pool)
+            .await
+            .unwrap();
+    let mut latest = time::Duration::ZERO;
+    for at in &finished {
+        let at = time::OffsetDateTime::parse(at, &time::format_description::well_known::Rfc3339)
+            .unwrap();
+        let after = at - killed_wall;
+        latest = latest.max(after);
+        assert!(
+            after < time::Duration::try_from(bound).unwrap(),
+            "a retried job finished {after} after the kill (bound {bound:?})"
+        );
+    }
     eprintln!(
-        "failover: {JOBS} jobs, {retried} retried after the kill, {:?} in all",
+        "failover: {JOBS} jobs, {retried} retried after the kill (the last done {latest} after it, bound {bound:?}), {:?} in all",
         started.elapsed()
     );
 }
