@@ -149,8 +149,8 @@ fn leaf_keys(prefix: &str, v: &toml::Value, out: &mut Vec<String>) {
     }
 }
 
-#[test]
-fn every_key_of_the_effective_configuration_is_in_the_reference() {
+/// Every key `grounder config` prints, set or not.
+fn effective_keys() -> Vec<String> {
     let o = run(&["config"], &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8(o.stdout).unwrap();
@@ -163,6 +163,12 @@ fn every_key_of_the_effective_configuration_is_in_the_reference() {
             .and_then(|r| r.split_once(" is not set"))
             .map(|(k, _)| k.to_string())
     }));
+    keys
+}
+
+#[test]
+fn every_key_of_the_effective_configuration_is_in_the_reference() {
+    let keys = effective_keys();
     assert!(keys.len() > 100, "too few keys walked: {}", keys.len());
     let doc_path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/configuration.md");
     let doc = std::fs::read_to_string(doc_path).unwrap();
@@ -178,17 +184,7 @@ fn every_key_of_the_effective_configuration_is_in_the_reference() {
 
 #[test]
 fn every_key_the_readme_names_is_a_key_of_the_configuration() {
-    let o = run(&["config"], &[]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let text = String::from_utf8(o.stdout).unwrap();
-    let value: toml::Value = toml::from_str(&text).unwrap();
-    let mut keys = Vec::new();
-    leaf_keys("", &value, &mut keys);
-    keys.extend(text.lines().filter_map(|l| {
-        l.strip_prefix("# ")
-            .and_then(|r| r.split_once(" is not set"))
-            .map(|(k, _)| k.to_string())
-    }));
+    let keys = effective_keys();
     let readme =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
     // The first cell of each row of the README's configuration table.
