@@ -1,8 +1,8 @@
 //! Stage 4b: instance selection. With several candidates in the chosen frame, the VLM sees
 //! the frame with "ID:n" labels at the box centres and answers an object id; an invalid id
 //! gets feedback within the same retry budget. The same exchange serves set-of-marks
-//! selection over class-agnostic candidates ([`SelectKind::Marks`]: its own prompt, and the
-//! regions' outlines drawn).
+//! selection over class-agnostic candidates ([`SelectKind::Marks`]: its own prompt, the
+//! regions' outlines drawn, and "none of these" as a valid answer).
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -14,7 +14,7 @@ use crate::jobs::{JobContext, JobFailure};
 use crate::stitch::annotate::annotate_instances;
 use crate::stitch::render::encode_jpeg;
 use crate::vision::Detection;
-use crate::vlm::json::{parse_instance, QueryAnalysis};
+use crate::vlm::json::{parse_instance, parse_no_object, QueryAnalysis};
 use crate::vlm::prompts::{InstanceInput, ReplyKind};
 use crate::vlm::{CallBudget, ImageData, Message};
 
@@ -42,6 +42,8 @@ impl SelectKind {
     }
 }
 
+/// The chosen candidate's index and box; `None` when, in set-of-marks selection, the VLM
+/// says that no region is the target.
 #[allow(clippy::too_many_arguments)]
 pub async fn select(
     g: &VlmGrounder,
@@ -53,7 +55,7 @@ pub async fn select(
     image: &RgbImage,
     dets: &[Detection],
     kind: SelectKind,
-) -> Result<(usize, [f32; 4]), JobFailure> {
+) -> Result<Option<(usize, [f32; 4])>, JobFailure> {
     let t = Instant::now();
     let boxes: Vec<(String, [f32; 4])> = dets
         .iter()
@@ -98,6 +100,20 @@ pub async fn select(
         let (reply, mut rec) = conv
             .ask(g, budget, crate::vlm::VlmStep::ObjectSelection)
             .await?;
+        if kind == SelectKind::Marks {
+            if let Some(reasoning) = parse_no_object(&reply) {
+                exchanges.push(rec);
+                step(
+                    ctx,
+                    kind.step(),
+                    json!({"candidates": dets.len(), "annotated": url}),
+                    json!({"index": null, "box": null, "none": true, "asked_vlm": true, "reasoning": reasoning, "vlm": exchanges}),
+                    t,
+                )
+                .await;
+                return Ok(None);
+            }
+        }
         let (fb, why) = match parse_instance(&reply) {
             Ok(a) if (a.object_id as usize) < dets.len() => {
                 exchanges.push(rec);
@@ -110,7 +126,7 @@ pub async fn select(
                     t,
                 )
                 .await;
-                return Ok((i, dets[i].bbox));
+                return Ok(Some((i, dets[i].bbox)));
             }
             Ok(a) => (
                 g.prompts

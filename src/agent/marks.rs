@@ -1,7 +1,8 @@
 //! Set-of-marks selection (ours): the class-agnostic candidates of the chosen image, found
 //! at indexing from the scan itself (`vision::candidates`), are drawn as numbered regions
 //! and the VLM picks the one the query describes, with the same feedback rules as instance
-//! selection. A scene indexed before candidates existed gets them computed here.
+//! selection. When the VLM says no region is the target, it is asked for the box itself
+//! (`box_fallback`). A scene indexed before candidates existed gets them computed here.
 
 use image::RgbImage;
 use serde_json::json;
@@ -10,7 +11,7 @@ use std::time::Instant;
 use super::conversation::Conversation;
 use super::instance::{self, SelectKind};
 use super::proposal::{not_here, BoxSource, Outcome};
-use super::{step, VlmGrounder};
+use super::{step, vlm_box, VlmGrounder};
 use crate::geometry::estimate_room;
 use crate::jobs::{JobContext, JobFailure};
 use crate::vision::candidates::{box_iou, frame_candidates};
@@ -111,7 +112,7 @@ pub async fn select(
             format!("no candidate region in image {idx:05}"),
         ));
     }
-    let (i, bbox) = instance::select(
+    let chosen = instance::select(
         g,
         ctx,
         budget,
@@ -123,10 +124,26 @@ pub async fn select(
         SelectKind::Marks,
     )
     .await?;
-    let source = if i < dets.len() {
-        BoxSource::Detector
-    } else {
-        BoxSource::Marks
-    };
-    Ok(Outcome::Box(bbox, source))
+    match chosen {
+        Some((i, bbox)) => {
+            let source = if i < dets.len() {
+                BoxSource::Detector
+            } else {
+                BoxSource::Marks
+            };
+            Ok(Outcome::Box(bbox, source))
+        }
+        // No region outlines the target. Marks come from what the scan separates; an
+        // object of the wall's colour flush with it, or one merged with its neighbour, has
+        // no mark of its own, while the VLM may still see it: it draws the box itself.
+        None if g.params.candidates.box_fallback => {
+            vlm_box::ask(g, ctx, budget, conv, analysis, idx, image).await
+        }
+        None => Ok(not_here(
+            g,
+            idx,
+            &analysis.target_class,
+            format!("the VLM found no marked region that is the target in image {idx:05}"),
+        )),
+    }
 }

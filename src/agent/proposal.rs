@@ -129,20 +129,27 @@ pub async fn propose(
             .await;
             Ok(Outcome::Box(dets[0].bbox, BoxSource::Detector))
         }
-        _ => {
-            let (_, bbox) = instance::select(
+        _ => match instance::select(
+            g,
+            ctx,
+            budget,
+            conv,
+            analysis,
+            idx,
+            image,
+            &dets,
+            SelectKind::Detections,
+        )
+        .await?
+        {
+            Some((_, bbox)) => Ok(Outcome::Box(bbox, BoxSource::Detector)),
+            // Only set-of-marks selection takes "none" as an answer.
+            None => Ok(not_here(
                 g,
-                ctx,
-                budget,
-                conv,
-                analysis,
                 idx,
-                image,
-                &dets,
-                SelectKind::Detections,
-            )
-            .await?;
-            Ok(Outcome::Box(bbox, BoxSource::Detector))
-        }
+                class,
+                format!("no {det_class} chosen in image {idx:05}"),
+            )),
+        },
     }
 }

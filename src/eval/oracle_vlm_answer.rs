@@ -58,6 +58,8 @@ pub struct Conversation {
     pub frame_size: Option<(u32, u32)>,
     /// Instance selection: candidate boxes by object id.
     pub candidates: Vec<[f32; 4]>,
+    /// Instance selection over set-of-marks regions, where "none" is a valid answer.
+    pub marks: bool,
     /// Box request: the coordinate convention asked for.
     pub box_format: Option<BoxFormat>,
     /// Images of the latest task message.
@@ -124,6 +126,7 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
         frame: None,
         frame_size: None,
         candidates: Vec::new(),
+        marks: has_marker(&task.text, markers::MARKS),
         box_format: None,
         // Images of the task message; if the agent sent them in separate messages, all
         // images from the task message on.
@@ -295,9 +298,24 @@ pub fn best_frame(
         .or(pool.first().copied())
 }
 
+/// A set-of-marks region outlines the target when its box overlaps the target's extent in
+/// the frame by at least this IoU: the usual criterion for a box matching an object. Below
+/// it (a piece of the object, or the object with its neighbour) the oracle answers that no
+/// region is the target, as a careful reader of the marked image would.
+pub const MARK_MATCH_IOU: f32 = 0.5;
+
 /// The candidate best overlapping the target's extent in the frame (boxes rescaled from
 /// the size stated in the prompt to the colour image size).
 pub fn best_candidate(scene: &SceneTruth, target: u32, conv: &Conversation) -> Option<u32> {
+    best_candidate_iou(scene, target, conv).map(|(i, _)| i)
+}
+
+/// [`best_candidate`] with its IoU.
+pub fn best_candidate_iou(
+    scene: &SceneTruth,
+    target: u32,
+    conv: &Conversation,
+) -> Option<(u32, f32)> {
     let frame = scene.frames.get(conv.frame? as usize)?;
     let gt = frame.instances.get(&target)?.bbox;
     let (sx, sy) = match conv.frame_size {
@@ -318,7 +336,6 @@ pub fn best_candidate(scene: &SceneTruth, target: u32, conv: &Conversation) -> O
         })
         .filter(|(_, v)| *v > 0.0)
         .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
-        .map(|(i, _)| i)
 }
 
 /// Produce the reply text. `error_rate` with the given RNG injects fallible answers.
@@ -375,7 +392,12 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
         Mode::Instance => {
             let best = resolved
                 .as_ref()
-                .and_then(|(q, s)| best_candidate(s.as_deref()?, q.target_id, conv));
+                .and_then(|(q, s)| best_candidate_iou(s.as_deref()?, q.target_id, conv));
+            if conv.marks && kind == u8::MAX && best.is_some_and(|(_, v)| v < MARK_MATCH_IOU) {
+                return json!({"reasoning": "oracle: no region outlines the target", "object_id": null})
+                    .to_string();
+            }
+            let best = best.map(|(i, _)| i);
             let n = conv.candidates.len() as u32;
             let mut id = best.unwrap_or(0);
             let mut why = "this box overlaps the target most".to_string();

@@ -327,6 +327,22 @@ pub fn parse_grounding(text: &str) -> Result<GroundingAnswer, JsonError> {
     })
 }
 
+/// A set-of-marks reply saying that no offered region is the target: `object_id` is null,
+/// or a word such as "none" without a number. The reasoning comes back with it.
+pub fn parse_no_object(text: &str) -> Option<String> {
+    let v = extract_json(text).ok()?;
+    let none = match v.get("object_id")? {
+        Value::Null => true,
+        Value::String(s) => {
+            let s = s.trim().to_ascii_lowercase();
+            !s.chars().any(|c| c.is_ascii_digit())
+                && ["none", "null", "no", "n/a", "nothing", ""].contains(&s.as_str())
+        }
+        _ => false,
+    };
+    none.then(|| lenient_string(v.get("reasoning")))
+}
+
 /// Parse an instance selection reply.
 pub fn parse_instance(text: &str) -> Result<InstanceAnswer, JsonError> {
     let v = extract_json(text)?;

@@ -288,6 +288,74 @@ async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
     assert_trace_clean(&job);
 }
 
+/// No marked region outlines the target (an object of the wall's colour flush with it has
+/// no region of its own): the VLM says so, is asked for the box itself in the same image,
+/// and the job ends with a box from the VLM (`box_fallback`, on by default).
+#[tokio::test]
+async fn no_mark_outlines_the_target_so_the_vlm_draws_its_box() {
+    let f = Fixture::start_with_candidates(vec![], 5_000, "centernet").await;
+    f.vlm.script_push(vec![
+        analysis("whiteboard"),
+        pick_image("00000"),
+        Reply::ok(
+            serde_json::json!({"reasoning": "the board has no outline", "object_id": null})
+                .to_string(),
+        ),
+        Reply::ok(
+            serde_json::json!({"reasoning": "left of the door", "bbox_2d": [2, 2, 30, 30]})
+                .to_string(),
+        ),
+    ]);
+    let job = f.run_job(QUERY).await;
+    assert_eq!(job["status"], "succeeded", "{job:#}");
+    assert_eq!(
+        job["result"]["box_source"], "vlm_box",
+        "{:#}",
+        job["result"]
+    );
+    let marks = steps(&job, "mark_selection");
+    assert_eq!(marks.len(), 1, "{job:#}");
+    assert_eq!(marks[0]["outputs"]["none"], true, "{:#}", marks[0]);
+    let boxes = steps(&job, "vlm_box");
+    assert_eq!(boxes.len(), 1, "{job:#}");
+    assert_eq!(
+        boxes[0]["outputs"]["box"],
+        serde_json::json!([2.0, 2.0, 30.0, 30.0])
+    );
+    let seg = steps(&job, "segmentation");
+    assert_eq!(seg.len(), 1, "{job:#}");
+    assert_eq!(seg[0]["inputs"]["box"], boxes[0]["outputs"]["box"]);
+    // The box request followed the marks in the same conversation.
+    let reqs = f.vlm.requests();
+    assert_eq!(reqs.len(), 4, "analysis, image, marks, box");
+    let text = text_of(last_message(&reqs[3]));
+    assert!(text.contains("Task: object box"), "{text}");
+    let history = reqs[3]["messages"].to_string();
+    assert!(history.contains("Task: mark selection"), "{history}");
+    assert_trace_clean(&job);
+}
+
+/// With `box_fallback` off, "no region" sends the VLM to another image.
+#[tokio::test]
+async fn without_the_box_fallback_no_mark_means_not_in_this_image() {
+    let f = Fixture::start_with_config(5_000, "centernet", |c| {
+        c.agent.candidates.enabled = true;
+        c.agent.candidates.box_fallback = false;
+    })
+    .await;
+    f.vlm.script_push(vec![
+        analysis("whiteboard"),
+        pick_image("00000"),
+        Reply::ok(serde_json::json!({"reasoning": "not outlined", "object_id": null}).to_string()),
+    ]);
+    let job = f.run_job(QUERY).await;
+    let reqs = f.vlm.requests();
+    assert!(reqs.len() >= 4, "{} requests", reqs.len());
+    let fb = prompts().feedback_object_not_existing(0, "whiteboard");
+    assert_eq!(text_of(last_message(&reqs[3])), fb);
+    assert!(steps(&job, "vlm_box").is_empty(), "{job:#}");
+}
+
 #[tokio::test]
 async fn several_candidates_go_through_instance_selection_with_feedback() {
     let f = Fixture::start(vec![], 5_000).await;

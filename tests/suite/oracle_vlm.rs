@@ -1,7 +1,7 @@
 //! The oracle VLM on hand-made scenes, driven by the real client and the real prompts.
 
 use grounder::eval::oracle_vlm::{router, OracleVlmArgs};
-use grounder::vlm::json::{parse_grounding, parse_instance, parse_query_analysis};
+use grounder::vlm::json::{parse_grounding, parse_instance, parse_no_object, parse_query_analysis};
 use grounder::vlm::prompts::{GroundingInput, InstanceInput, Prompts};
 use grounder::vlm::{CallBudget, ImageData, Message, VlmClient, VlmConfig};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
@@ -175,6 +175,54 @@ async fn answers_each_prompt_from_ground_truth() {
     conv.push(Message::user(f.prompts.feedback_object_id_invalid("9", 2)));
     let r = f.client.chat(&conv, &b).await.unwrap();
     assert_eq!(parse_instance(&r.text).unwrap().object_id, 1);
+}
+
+/// Set-of-marks regions of frame 1, where the target's extent is [16, 8, 28, 20].
+fn marks_msg(p: &Prompts, candidates: &[[f32; 4]]) -> Message {
+    let text = p.mark_selection(&InstanceInput {
+        query: TEXT,
+        target_class: "chair",
+        image_id: 1,
+        width: W,
+        height: H,
+        candidates,
+    });
+    Message::user_with_images(text, vec![ImageData::jpeg(jpeg([200, 40, 40]))])
+}
+
+#[tokio::test]
+async fn marks_answer_a_region_that_outlines_the_target_else_none() {
+    let f = start(0.0, 1, false).await;
+    let b = CallBudget::unlimited();
+    // A region that outlines the target (IoU 0.75 >= MARK_MATCH_IOU) is picked.
+    let whole = [[0.0, 0.0, 8.0, 8.0], [16.0, 8.0, 28.0, 17.0]];
+    let r = f
+        .client
+        .chat(&[marks_msg(&f.prompts, &whole)], &b)
+        .await
+        .unwrap();
+    assert_eq!(parse_instance(&r.text).unwrap().object_id, 1, "{}", r.text);
+    assert_eq!(parse_no_object(&r.text), None, "{}", r.text);
+    // Only a quarter of it is marked (IoU 0.25): no region is the target.
+    let piece = [[0.0, 0.0, 8.0, 8.0], [16.0, 8.0, 22.0, 14.0]];
+    let r = f
+        .client
+        .chat(&[marks_msg(&f.prompts, &piece)], &b)
+        .await
+        .unwrap();
+    assert!(parse_no_object(&r.text).is_some(), "{}", r.text);
+    // Instance selection among detections has no "none": the best overlap is picked.
+    let text = f.prompts.instance_selection(&InstanceInput {
+        query: TEXT,
+        target_class: "chair",
+        image_id: 1,
+        width: W,
+        height: H,
+        candidates: &piece,
+    });
+    let msg = Message::user_with_images(text, vec![ImageData::jpeg(jpeg([200, 40, 40]))]);
+    let r = f.client.chat(&[msg], &b).await.unwrap();
+    assert_eq!(parse_instance(&r.text).unwrap().object_id, 1, "{}", r.text);
 }
 
 #[tokio::test]

@@ -1,7 +1,8 @@
 //! Tolerant JSON extraction and typed reply parsing.
 
 use grounder::vlm::json::{
-    extract_json, lenient_id, parse_grounding, parse_instance, parse_query_analysis, JsonError,
+    extract_json, lenient_id, parse_grounding, parse_instance, parse_no_object,
+    parse_query_analysis, JsonError,
 };
 use serde_json::json;
 
@@ -113,4 +114,31 @@ fn typed_replies() {
         parse_instance(r#"{"reasoning": "?"}"#),
         Err(JsonError::Field("object_id"))
     );
+}
+
+#[test]
+fn a_marks_reply_may_say_no_region_is_the_target() {
+    for text in [
+        r#"{"reasoning": "the window is not outlined", "object_id": null}"#,
+        r#"```json
+{"reasoning": "the window is not outlined", "object_id": "none"}
+```"#,
+        r#"{"reasoning": "the window is not outlined", "object_id": "None"}"#,
+    ] {
+        assert_eq!(
+            parse_no_object(text).as_deref(),
+            Some("the window is not outlined"),
+            "{text}"
+        );
+    }
+    // A number, a missing field or an unreadable reply is not "none".
+    for text in [
+        r#"{"object_id": 0}"#,
+        r#"{"object_id": "ID:3"}"#,
+        r#"{"object_id": "none of them except 2"}"#,
+        r#"{"reasoning": "x"}"#,
+        "no JSON here",
+    ] {
+        assert_eq!(parse_no_object(text), None, "{text}");
+    }
 }

@@ -78,6 +78,10 @@ pub struct CandidateParams {
     /// misses instances and boxes the wrong object. Candidates overlapping a detection by
     /// more than `dedupe_iou` are left out.
     pub beside_detections: bool,
+    /// When the VLM answers that no marked region is the target, ask it for the target's
+    /// box in that image (the `detector = "vlm"` request, in `[agent] box_format`) instead
+    /// of sending it to another image.
+    pub box_fallback: bool,
 }
 
 impl Default for CandidateParams {
@@ -99,6 +103,7 @@ impl Default for CandidateParams {
             max_per_frame: 24,
             dedupe_iou: 0.85,
             beside_detections: true,
+            box_fallback: true,
         }
     }
 }
