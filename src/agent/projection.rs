@@ -79,6 +79,39 @@ pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4
         .map(|(_, b)| b)
 }
 
+/// Where an ensemble view's box came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+enum BoxFrom {
+    /// A cached detection of the target class.
+    Detection,
+    /// One of the view's class-agnostic candidates (`vision::candidates`).
+    Candidate,
+    /// The box of the reprojected anchor points.
+    Footprint,
+}
+
+/// The view's cached candidate holding the reprojected anchor `pixels` ([`pick_detection`]),
+/// when candidates are on and were computed at indexing.
+async fn view_candidate(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    idx: usize,
+    pixels: &[[u32; 2]],
+) -> Result<Option<[f32; 4]>, JobFailure> {
+    if !g.params.candidates.enabled || !g.params.candidates.in_views {
+        return Ok(None);
+    }
+    let cands = ctx
+        .store
+        .frame_candidates(&ctx.scene.id, idx)
+        .await
+        .map_err(|e| JobFailure::new("storage_error", e.to_string()))?
+        .unwrap_or_default();
+    let boxes: Vec<[f32; 4]> = cands.iter().map(|c| c.bbox).collect();
+    Ok(pick_detection(&boxes, pixels))
+}
+
 /// A view's segmentation: raw mask, the object's points, and the context points around it
 /// (for support completion; empty when that is off).
 struct ViewCloud {
@@ -295,7 +328,17 @@ pub async fn run(
                 .collect();
             pick_detection(&boxes, &v.pixels)
         });
-        view_boxes.push((v.index, best.unwrap_or(v.bbox), best.is_some()));
+        // Else the view's class-agnostic candidates, by the same rule: the object the
+        // anchor's points fall on, whole, where the anchor saw only a part of it (a chair's
+        // back over a table's edge). Without either, the footprint's own box.
+        let (b, from) = match best {
+            Some(b) => (b, BoxFrom::Detection),
+            None => match view_candidate(g, ctx, v.index, &v.pixels).await? {
+                Some(b) => (b, BoxFrom::Candidate),
+                None => (v.bbox, BoxFrom::Footprint),
+            },
+        };
+        view_boxes.push((v.index, b, from));
     }
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
     let td = Instant::now();
@@ -436,9 +479,9 @@ pub async fn run(
     let view_json: Vec<_> = views
         .iter()
         .zip(&view_boxes)
-        .map(|(v, (_, b, from_det))| {
+        .map(|(v, (_, b, from))| {
             let d = fusion.views.iter().find(|d| d.index == v.index);
-            json!({"image_id": format!("{:05}", v.index), "visible_fraction": v.visible_fraction, "footprint": v.bbox, "box": b, "box_from_detection": from_det,
+            json!({"image_id": format!("{:05}", v.index), "visible_fraction": v.visible_fraction, "footprint": v.bbox, "box": b, "box_from_detection": *from == BoxFrom::Detection, "box_from": from,
                    "chamfer": d.and_then(|d| d.chamfer), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points), "depth_fill": fills.get(&v.index).cloned().unwrap_or_default()})
         })
         .collect();

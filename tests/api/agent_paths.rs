@@ -288,6 +288,59 @@ async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
     assert_trace_clean(&job);
 }
 
+/// The ensemble views of a marks job take their boxes from their own cached candidates (the
+/// region holding the reprojected object), not only from the reprojected points; with
+/// `in_views` off they do not.
+#[tokio::test]
+async fn ensemble_views_take_the_candidate_that_holds_the_object() {
+    for in_views in [true, false] {
+        let f = Fixture::start_with_config(5_000, "centernet", |c| {
+            c.agent.candidates.enabled = true;
+            c.agent.candidates.in_views = in_views;
+        })
+        .await;
+        f.vlm.script_push(vec![
+            analysis("whiteboard"),
+            pick_image("00000"),
+            pick_object(0),
+        ]);
+        let job = f.run_job(QUERY).await;
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        let proj = steps(&job, "projection");
+        let views = proj[0]["outputs"]["views"]
+            .as_array()
+            .cloned()
+            .unwrap_or_default();
+        assert!(!views.is_empty(), "{:#}", proj[0]);
+        let mut from_candidates = 0;
+        for v in &views {
+            let idx: usize = v["image_id"].as_str().unwrap().parse().unwrap();
+            let cands = f
+                .store
+                .frame_candidates(&f.scene_id, idx)
+                .await
+                .unwrap()
+                .unwrap_or_default();
+            if v["box_from"] == "candidate" {
+                from_candidates += 1;
+                let b: Vec<f32> = serde_json::from_value(v["box"].clone()).unwrap();
+                assert!(
+                    cands.iter().any(|c| c.bbox.to_vec() == b),
+                    "view {idx}: {b:?} is not one of its candidates"
+                );
+            } else {
+                assert_eq!(v["box_from"], "footprint", "{v:#}");
+                assert_eq!(v["box"], v["footprint"], "{v:#}");
+            }
+        }
+        if in_views {
+            assert!(from_candidates > 0, "no view used a candidate: {views:#?}");
+        } else {
+            assert_eq!(from_candidates, 0, "{views:#?}");
+        }
+    }
+}
+
 /// No marked region outlines the target (an object of the wall's colour flush with it has
 /// no region of its own): the VLM says so, is asked for the box itself in the same image,
 /// and the job ends with a box from the VLM (`box_fallback`, on by default).

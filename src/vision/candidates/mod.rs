@@ -82,6 +82,11 @@ pub struct CandidateParams {
     /// box in that image (the `detector = "vlm"` request, in `[agent] box_format`) instead
     /// of sending it to another image.
     pub box_fallback: bool,
+    /// In the multi-view ensemble, a view without a detection of the target class takes the
+    /// candidate of that view that holds the reprojected object (the rule applied to
+    /// detections), instead of the box of the reprojected points alone: a view that sees
+    /// the whole of an object the chosen view saw in part then segments all of it.
+    pub in_views: bool,
 }
 
 impl Default for CandidateParams {
@@ -104,6 +109,7 @@ impl Default for CandidateParams {
             dedupe_iou: 0.85,
             beside_detections: true,
             box_fallback: true,
+            in_views: true,
         }
     }
 }
