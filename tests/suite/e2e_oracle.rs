@@ -13,10 +13,12 @@ use std::time::Duration;
 const BIN: &str = env!("CARGO_BIN_EXE_grounder");
 
 /// Floors of the two open-vocabulary runs, below what they measured on these scenes on
-/// 2026-11-25: CenterNet + set-of-marks 0.838 / 0.735 (Acc@0.25 / Acc@0.5; the oracle
-/// detector gives 0.985 / 0.897), VLM boxes 0.912 / 0.721.
-const E2E_MARKS_FLOOR_025: f64 = 0.75;
-const E2E_VLM_BOX_FLOOR_025: f64 = 0.85;
+/// 2026-11-25 (Acc@0.25 / Acc@0.5; the oracle detector gives 0.985 / 0.897): CenterNet +
+/// set-of-marks 0.838 / 0.735 at first, 0.882 / 0.735 once "no region is the target" led
+/// to a VLM box and ensemble views took their own candidates; VLM boxes 0.912 / 0.721,
+/// then 0.985 / 0.750.
+const E2E_MARKS_FLOOR_025: f64 = 0.82;
+const E2E_VLM_BOX_FLOOR_025: f64 = 0.92;
 
 /// Kills and reaps the child when dropped, so a failing assertion leaves no process behind.
 struct ChildGuard {
