@@ -4,6 +4,7 @@
 //! and cancellation.
 
 mod bench_sse;
+mod compose;
 mod config;
 mod crash;
 mod depth_file;
