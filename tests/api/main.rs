@@ -24,12 +24,14 @@ mod llama_cpp;
 mod memory;
 mod openapi;
 mod pg_leases;
+mod pg_replicas;
 mod polling;
 mod postgres;
 mod problems;
 mod restart;
 mod scenes;
 mod storage;
+mod storage_timeouts;
 mod viewer;
 mod webhooks;
 
