@@ -260,3 +260,61 @@ async fn a_worker_replica_takes_over_indexing_that_a_killed_replica_left() {
         killed.elapsed()
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_indexer_holds_a_scene_until_its_lease_runs_out() {
+    use grounder::store::Claim;
+    let Some(server) = pg::server() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let url = pg::database(&server, &format!("claims-{}", uuid::Uuid::now_v7()));
+    let mut cfg = test_config(dir.path().to_path_buf());
+    cfg.database_url = Some(url.clone());
+    let app = TestApp::spawn_with(cfg).await;
+    let r = app
+        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
+        .await;
+    assert_eq!(r.status().as_u16(), 201);
+    let sid = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    app.stop().await;
+    let open = || async {
+        Store::connect(&url, dir.path())
+            .await
+            .unwrap()
+            .with_lease_seconds(1)
+    };
+    let (a, b) = (open().await, open().await);
+    assert!(a.claim_indexing(&sid, "a", Claim::Start).await.unwrap());
+    assert!(!b.claim_indexing(&sid, "b", Claim::Start).await.unwrap());
+    assert!(!b.claim_indexing(&sid, "b", Claim::TakeOver).await.unwrap());
+    assert!(b.indexing_held(&sid).await.unwrap());
+    assert!(a.renew_indexing(&sid, "a").await.unwrap());
+    assert!(!b.renew_indexing(&sid, "b").await.unwrap());
+    assert!(b.unclaimed_indexing().await.unwrap().is_empty());
+    // a stops renewing: once the lease ran out, b takes the scene over, and a can neither
+    // renew nor record an outcome.
+    tokio::time::sleep(Duration::from_millis(1300)).await;
+    assert!(!b.indexing_held(&sid).await.unwrap());
+    assert!(b.claim_indexing(&sid, "b", Claim::TakeOver).await.unwrap());
+    assert!(!a.renew_indexing(&sid, "a").await.unwrap());
+    assert!(!a
+        .end_indexing(&sid, "a", "failed", Some("x"))
+        .await
+        .unwrap());
+    assert!(b.end_indexing(&sid, "b", "ready", None).await.unwrap());
+    let (status, owner): (String, Option<String>) =
+        sqlx::query_as("SELECT status, index_owner FROM scenes WHERE id = $1")
+            .bind(&sid)
+            .fetch_one(&a.pool)
+            .await
+            .unwrap();
+    assert_eq!((status.as_str(), owner), ("ready", None));
+    // Force takes it whatever the lease (the only process, at start-up).
+    assert!(a.claim_indexing(&sid, "a", Claim::Start).await.unwrap());
+    assert!(b.claim_indexing(&sid, "b", Claim::Force).await.unwrap());
+    assert!(!a.renew_indexing(&sid, "a").await.unwrap());
+}
