@@ -37,14 +37,15 @@ pub struct ServeArgs {
 pub enum Role {
     /// The HTTP API and the workers (one process does everything).
     All,
-    /// The HTTP API only: jobs and scene indexing are left to worker replicas.
+    /// The HTTP API only: jobs are left to worker replicas (it indexes the scenes it
+    /// stores; indexing a stopped replica left is taken over by any replica).
     Api,
-    /// Workers only (jobs and indexing); HTTP answers the health endpoints alone.
+    /// Workers only (jobs, and indexing taken over); HTTP answers the health endpoints alone.
     Worker,
 }
 
 impl Role {
-    /// True when this process claims jobs and indexes scenes.
+    /// True when this process claims jobs.
     pub fn runs_workers(self) -> bool {
         self != Role::Api
     }
