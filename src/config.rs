@@ -37,14 +37,15 @@ pub struct ServeArgs {
 pub enum Role {
     /// The HTTP API and the workers (one process does everything).
     All,
-    /// The HTTP API only: jobs and scene indexing are left to worker replicas.
+    /// The HTTP API only: jobs are left to worker replicas (it indexes the scenes it
+    /// stores; indexing a stopped replica left is taken over by any replica).
     Api,
-    /// Workers only (jobs and indexing); HTTP answers the health endpoints alone.
+    /// Workers only (jobs, and indexing taken over); HTTP answers the health endpoints alone.
     Worker,
 }
 
 impl Role {
-    /// True when this process claims jobs and indexes scenes.
+    /// True when this process claims jobs.
     pub fn runs_workers(self) -> bool {
         self != Role::Api
     }
@@ -70,9 +71,22 @@ pub struct Config {
     pub storage: String,
     /// Bound of the local cache of scenes downloaded from an `s3://` storage, MB.
     pub storage_cache_mb: u64,
+    /// `s3://` storage: longest wait for a connection to the object store, s.
+    pub storage_connect_timeout_secs: u64,
+    /// `s3://` storage: longest one request to the object store may take, s (a download
+    /// of one frame included).
+    pub storage_request_timeout_secs: u64,
+    /// `s3://` storage: retries of a failed request (with back-off) before it fails.
+    pub storage_retries: usize,
+    /// `s3://` storage: no retry starts later than this after a request's first try, s.
+    pub storage_retry_timeout_secs: u64,
+    /// PostgreSQL replicas: a replica's start-up sweep removes a leftover file or folder
+    /// (no row names it) only when nothing in it changed for this long, s; another replica
+    /// may be writing it.
+    pub sweep_grace_secs: u64,
     /// The database: `sqlite://PATH` or `postgres://USER:PASSWORD@HOST:PORT/DB` (unset:
     /// `grounder.db` in `data_dir`). Replicas that share a PostgreSQL database share one
-    /// queue; they must also share `data_dir` (one volume).
+    /// queue; they share either `data_dir` (one volume) or an `s3://` storage.
     pub database_url: Option<String>,
     /// What `serve` runs: "all" (API and workers), "api" (no workers) or "worker" (claims
     /// jobs and indexes scenes; answers only the health endpoints).
@@ -160,6 +174,11 @@ impl Default for Config {
             data_dir: PathBuf::from("./data"),
             storage: String::new(),
             storage_cache_mb: crate::storage::DEFAULT_CACHE_MB,
+            storage_connect_timeout_secs: 5,
+            storage_request_timeout_secs: 60,
+            storage_retries: 3,
+            storage_retry_timeout_secs: 15,
+            sweep_grace_secs: 600,
             database_url: None,
             role: Role::All,
             lease_seconds: 30,
@@ -198,6 +217,17 @@ impl Default for Config {
 }
 
 impl Config {
+    /// The bounds of one request to an `s3://` storage.
+    pub fn remote_limits(&self) -> crate::storage::RemoteLimits {
+        use std::time::Duration;
+        crate::storage::RemoteLimits {
+            connect_timeout: Duration::from_secs(self.storage_connect_timeout_secs.max(1)),
+            request_timeout: Duration::from_secs(self.storage_request_timeout_secs.max(1)),
+            retries: self.storage_retries,
+            retry_timeout: Duration::from_secs(self.storage_retry_timeout_secs),
+        }
+    }
+
     /// Vision settings derived from this configuration.
     pub fn vision(&self) -> crate::vision::VisionConfig {
         let mut v = crate::vision::VisionConfig {

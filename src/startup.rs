@@ -9,7 +9,7 @@ use crate::api::{self, AppState, Readiness};
 use crate::config::{Config, ServeArgs};
 use crate::jobs::{Grounder, JobSystem, WorkerConfig};
 use crate::metrics::Metrics;
-use crate::store::Store;
+use crate::store::{Claim, Store};
 use crate::vision::Detector;
 use crate::vlm::prompts::Prompts;
 use crate::vlm::VlmClient;
@@ -35,6 +35,10 @@ impl Application {
     /// read from outside the configuration (the `AWS_*` variables of an `s3://` storage).
     pub async fn build_with_env(cfg: Config, env: &[(String, String)]) -> anyhow::Result<Self> {
         let store = Store::open_config(&cfg).await?;
+        if store.pg() {
+            // Alive from the start: what this replica holds is never taken as a dead one's.
+            store.heartbeat().await?;
+        }
         let (requeued, failed) = store.recover_jobs(cfg.max_attempts).await?;
         if requeued + failed > 0 {
             tracing::info!(
@@ -43,11 +47,12 @@ impl Application {
                 "recovered jobs interrupted by the previous process"
             );
         }
-        let storage = crate::storage::Storage::open(
+        let storage = crate::storage::Storage::open_with(
             &cfg.storage,
             &cfg.data_dir,
             cfg.storage_cache_mb << 20,
             env,
+            &cfg.remote_limits(),
         )
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -59,14 +64,21 @@ impl Application {
         }
         // One process per SQLite database: no request of the previous process is still in
         // flight, and leftovers of uploads, imports and deletes interrupted by a crash are
-        // its own. On PostgreSQL other replicas may be mid-request or mid-import right now
-        // (see docs/scale-out.md).
-        if !store.pg() {
-            store.idempotency_release_in_flight().await?;
-            let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir, &storage).await?;
-            if !swept.is_empty() {
-                tracing::info!(?swept, "cleaned up after the previous process");
+        // its own. On PostgreSQL other replicas may be mid-request or mid-import right now:
+        // only dead replicas' keys and rows go, and files only once settled (see
+        // docs/scale-out.md).
+        let mode = if store.pg() {
+            store.idempotency_release_dead().await?;
+            crate::jobs::sweep::Mode::Shared {
+                grace: std::time::Duration::from_secs(cfg.sweep_grace_secs),
             }
+        } else {
+            store.idempotency_release_in_flight().await?;
+            crate::jobs::sweep::Mode::Alone
+        };
+        let swept = crate::jobs::sweep::reconcile(&store, &cfg.data_dir, &storage, mode).await?;
+        if !swept.is_empty() {
+            tracing::info!(?swept, "cleaned up after stopped processes");
         }
         let metrics = Arc::new(Metrics::default());
         let mut readiness = Readiness::default();
@@ -117,13 +129,14 @@ impl Application {
                     params: cfg.agent.candidates.clone(),
                     layout: cfg.agent.geometry.layout.clone(),
                 });
-        let on_scene_stored = crate::jobs::indexing::hook(
+        let indexer = crate::jobs::indexing::Indexer::new(
             cfg.detector.clone(),
             detector,
             candidates,
             store.clone(),
             jobs.clone(),
         );
+        let on_scene_stored = indexer.hook();
         let uploads = Arc::new(tokio::sync::Semaphore::new(
             cfg.max_concurrent_uploads.max(1),
         ));
@@ -138,16 +151,22 @@ impl Application {
             auth: Arc::new(api::auth::Auth::new(anonymous)),
             uploads,
         };
-        // Scenes are indexed by the replica that stored them (roles all and api), so
-        // only those resume indexing; workers claim jobs (roles all and worker).
+        // Indexing left by a stopped process is resumed by any replica, whatever its role:
+        // alone on SQLite all of it now; on PostgreSQL whatever no live indexer holds,
+        // now and every third of the lease (with the other replica housekeeping).
         let role = state.cfg.role;
-        if role.serves_api() {
-            crate::jobs::indexing::resume(
-                &state.store,
-                &state.on_scene_stored,
-                state.cfg.max_index_attempts,
-            )
-            .await?;
+        let max_index_attempts = state.cfg.max_index_attempts;
+        if state.store.pg() {
+            crate::jobs::indexing::resume(&indexer, max_index_attempts, Claim::TakeOver).await?;
+            state.jobs.spawn_background(crate::jobs::replicas::run(
+                state.store.clone(),
+                state.jobs.storage().clone(),
+                indexer,
+                max_index_attempts,
+                state.jobs.stopping(),
+            ));
+        } else {
+            crate::jobs::indexing::resume(&indexer, max_index_attempts, Claim::Force).await?;
         }
         if role.runs_workers() {
             state.jobs.start();

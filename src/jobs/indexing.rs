@@ -6,15 +6,16 @@
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
 
 use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
 use crate::jobs::JobSystem;
 use crate::scene::FrameData;
-use crate::store::Store;
+use crate::store::{Claim, Store, StoreError};
 use crate::vision::candidates::{frame_candidates, CandidateParams};
 use crate::vision::{DetectInput, Detection, Detector};
 
-/// The hook the upload handler calls with a new scene id.
 /// The hook the upload handler calls with a new scene id and the first frame idx to index
 /// (0: the whole scene, from scratch; more: only the frames appended from there on).
 pub type IndexHook = Arc<dyn Fn(String, usize) + Send + Sync>;
@@ -95,81 +96,202 @@ fn store_preview(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Build the hook; `detector` is None when it could not be loaded (readiness says why).
-pub fn hook(
+/// Starts and resumes the indexing of scenes. One indexer per scene at a time, across
+/// replicas: it holds a lease on the scene row (`store::replicas`), renewed every third of
+/// the lease; once the lease runs out (its replica died) any replica takes the scene over.
+pub struct Indexer {
     detector_key: String,
+    /// None when the detector could not be loaded (readiness says why).
     detector: Option<Arc<dyn Detector>>,
     candidates: Option<CandidateSetup>,
     store: Store,
     jobs: JobSystem,
-) -> IndexHook {
-    Arc::new(move |scene_id: String, from: usize| {
-        let (store, jobs, detector, key, cands) = (
-            store.clone(),
-            jobs.clone(),
-            detector.clone(),
-            detector_key.clone(),
-            candidates.clone(),
-        );
-        tokio::spawn(async move {
-            // At most `max_concurrent_indexing` scenes at once; the others wait here.
-            let _slot = jobs.indexing_slot().await;
-            if let Err(e) = store.begin_index_attempt(&scene_id).await {
-                tracing::error!(scene = %scene_id, "cannot count the indexing attempt: {e}");
-            }
-            let outcome = index_scene(&store, &jobs, &scene_id, &key, detector, cands, from).await;
-            if outcome.is_ok() {
-                jobs.warm_scene_points(&scene_id);
-            }
-            let (status, err) = match outcome {
-                Ok(()) => ("ready", None),
-                Err(e) => {
-                    // The log keeps the full reason; the scene (and its jobs) name files only.
-                    tracing::warn!(scene = %scene_id, "indexing failed: {e:#}");
-                    let why = super::redact::without_paths(&format!("{e:#}"));
-                    ("failed", Some(why))
-                }
-            };
-            let ended = store.end_index_attempts(&scene_id).await;
-            if let Err(e) = ended.and(
-                store
-                    .set_scene_status(&scene_id, status, err.as_deref())
-                    .await,
-            ) {
-                tracing::error!(scene = %scene_id, "cannot record indexing outcome: {e}");
-            }
-            if status == "failed" {
-                // Jobs already queued on it would wait forever: they fail with its reason.
-                match store.fail_queued_jobs_of_failed_scenes().await {
-                    Ok(n) if n > 0 => {
-                        tracing::warn!(scene = %scene_id, jobs = n, "failed the jobs queued on a scene that failed indexing")
-                    }
-                    Ok(_) => {}
-                    Err(e) => {
-                        tracing::error!(scene = %scene_id, "cannot fail the queued jobs: {e}")
-                    }
-                }
-            }
-            jobs.wake();
-        });
-    })
 }
 
-/// Restart indexing of scenes a previous process left half-indexed. A scene whose indexing
-/// was interrupted `max_attempts` times (each time the process died: out of memory, a
-/// crashing model) ends `failed` with the reason instead of being tried again.
-pub async fn resume(store: &Store, hook: &IndexHook, max_attempts: i64) -> anyhow::Result<()> {
-    for (id, attempts) in store.interrupted_indexing().await? {
+/// How often an indexing lease is renewed, and a waiting indexer looks again.
+fn period(store: &Store) -> Duration {
+    Duration::from_millis((store.lease_ms() / 3).max(100) as u64)
+}
+
+impl Indexer {
+    pub fn new(
+        detector_key: String,
+        detector: Option<Arc<dyn Detector>>,
+        candidates: Option<CandidateSetup>,
+        store: Store,
+        jobs: JobSystem,
+    ) -> Arc<Self> {
+        Arc::new(Self {
+            detector_key,
+            detector,
+            candidates,
+            store,
+            jobs,
+        })
+    }
+
+    /// The hook the upload handler calls: index now, or once the scene's current indexer
+    /// (on this or another replica) is done.
+    pub fn hook(self: &Arc<Self>) -> IndexHook {
+        let me = self.clone();
+        Arc::new(move |scene_id: String, from: usize| me.start(scene_id, from, Claim::Start))
+    }
+
+    /// Index `scene_id` from frame `from` in the background, claiming it as `how` allows.
+    pub fn start(self: &Arc<Self>, scene_id: String, from: usize, how: Claim) {
+        let me = self.clone();
+        tokio::spawn(async move { me.run(scene_id, from, how).await });
+    }
+
+    /// Take the scene's indexing lease as `owner`. [`Claim::Start`] waits while another
+    /// indexer holds it; the others give up at once. False when not taken.
+    async fn claim(&self, id: &str, owner: &str, how: Claim) -> Result<bool, StoreError> {
+        loop {
+            if self.store.claim_indexing(id, owner, how).await? {
+                return Ok(true);
+            }
+            if how != Claim::Start {
+                return Ok(false);
+            }
+            if !self.store.indexing_held(id).await? {
+                // Freed meanwhile, or the scene is gone or hidden.
+                return self.store.claim_indexing(id, owner, how).await;
+            }
+            tokio::time::sleep(period(&self.store)).await;
+        }
+    }
+
+    async fn run(&self, scene_id: String, from: usize, how: Claim) {
+        let (store, jobs) = (&self.store, &self.jobs);
+        let owner = format!("{}/{}", store.replica, uuid::Uuid::now_v7());
+        match self.claim(&scene_id, &owner, how).await {
+            Ok(true) => {}
+            Ok(false) => {
+                tracing::debug!(scene = %scene_id, "another indexer has the scene");
+                return;
+            }
+            Err(e) => {
+                tracing::error!(scene = %scene_id, "cannot claim the scene's indexing: {e}");
+                return;
+            }
+        }
+        let lost = CancellationToken::new();
+        let keeper = AbortOnDrop(tokio::spawn(keep_lease(
+            store.clone(),
+            scene_id.clone(),
+            owner.clone(),
+            lost.clone(),
+        )));
+        // At most `max_concurrent_indexing` scenes at once; the others wait here.
+        let _slot = jobs.indexing_slot().await;
+        if let Err(e) = store.begin_index_attempt(&scene_id).await {
+            tracing::error!(scene = %scene_id, "cannot count the indexing attempt: {e}");
+        }
+        let (key, det, cands) = (
+            &self.detector_key,
+            self.detector.clone(),
+            self.candidates.clone(),
+        );
+        let outcome = tokio::select! {
+            r = index_scene(store, jobs, &scene_id, key, det, cands, from) => r,
+            _ = lost.cancelled() => {
+                tracing::warn!(scene = %scene_id, "the indexing lease was lost (another replica took the scene over); stopped");
+                return;
+            }
+        };
+        drop(keeper);
+        if outcome.is_ok() {
+            jobs.warm_scene_points(&scene_id);
+        }
+        let (status, err) = match outcome {
+            Ok(()) => ("ready", None),
+            Err(e) => {
+                // The log keeps the full reason; the scene (and its jobs) name files only.
+                tracing::warn!(scene = %scene_id, "indexing failed: {e:#}");
+                let why = super::redact::without_paths(&format!("{e:#}"));
+                ("failed", Some(why))
+            }
+        };
+        match store
+            .end_indexing(&scene_id, &owner, status, err.as_deref())
+            .await
+        {
+            Ok(true) => {}
+            Ok(false) => {
+                tracing::warn!(scene = %scene_id, "the indexing lease was lost before the outcome was recorded");
+                return;
+            }
+            Err(e) => tracing::error!(scene = %scene_id, "cannot record indexing outcome: {e}"),
+        }
+        if status == "failed" {
+            // Jobs already queued on it would wait forever: they fail with its reason.
+            match store.fail_queued_jobs_of_failed_scenes().await {
+                Ok(n) if n > 0 => {
+                    tracing::warn!(scene = %scene_id, jobs = n, "failed the jobs queued on a scene that failed indexing")
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    tracing::error!(scene = %scene_id, "cannot fail the queued jobs: {e}")
+                }
+            }
+        }
+        jobs.wake();
+    }
+}
+
+/// Aborts a task when dropped.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// Renew `owner`'s indexing lease every third of the lease until it is lost (`lost` is
+/// then cancelled) or this task is aborted.
+async fn keep_lease(store: Store, id: String, owner: String, lost: CancellationToken) {
+    loop {
+        tokio::time::sleep(period(&store)).await;
+        match store.renew_indexing(&id, &owner).await {
+            Ok(true) => {}
+            Ok(false) => {
+                lost.cancel();
+                return;
+            }
+            Err(e) => tracing::warn!(scene = %id, "cannot renew the indexing lease: {e}"),
+        }
+    }
+}
+
+/// Restart the indexing that dead processes left: with [`Claim::Force`] (the only
+/// process, at start-up) every scene left `indexing`; with [`Claim::TakeOver`] (replicas)
+/// those whose lease ran out. A scene whose indexing was interrupted `max_attempts` times
+/// (each time the process died: out of memory, a crashing model) ends `failed` with the
+/// reason instead of being tried again.
+pub async fn resume(indexer: &Arc<Indexer>, max_attempts: i64, how: Claim) -> anyhow::Result<()> {
+    let store = &indexer.store;
+    let left = match how {
+        Claim::TakeOver => store.unclaimed_indexing().await?,
+        _ => store.interrupted_indexing().await?,
+    };
+    for (id, attempts) in left {
         if attempts >= max_attempts.max(1) {
+            let owner = format!("{}/give-up", store.replica);
+            if !store.claim_indexing(&id, &owner, how).await? {
+                continue;
+            }
             let why = format!(
                 "indexing was interrupted {attempts} times (the process stopped during it each \
                  time, for example out of memory); given up after max_index_attempts = {max_attempts}"
             );
             tracing::error!(scene = %id, "{why}");
-            store.set_scene_status(&id, "failed", Some(&why)).await?;
-            store.end_index_attempts(&id).await?;
+            store
+                .end_indexing(&id, &owner, "failed", Some(&why))
+                .await?;
         } else {
-            hook(id, 0);
+            tracing::info!(scene = %id, "resuming indexing left by a stopped process");
+            indexer.start(id, 0, how);
         }
     }
     store.fail_queued_jobs_of_failed_scenes().await?;

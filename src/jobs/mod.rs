@@ -6,6 +6,7 @@ pub mod indexing;
 pub mod ingest;
 pub mod lease;
 pub mod redact;
+pub mod replicas;
 pub mod retention;
 pub mod scene_cache;
 pub mod sweep;

@@ -2,8 +2,15 @@
 //! does: deletes remove the files between marking the row `deleting` and removing it, and
 //! at start-up [`reconcile`] finishes what a crash interrupted (rows left `importing` or
 //! `deleting`, folders without a row, artifacts without a job, spooled uploads).
+//!
+//! Alone on its database (SQLite), a process owns every leftover. Beside other replicas
+//! (PostgreSQL, [`Mode::Shared`]) it finishes only the imports and deletes of dead replicas
+//! (`store::replicas`), and removes a file or folder no row names only when nothing in it
+//! changed for a grace period: another replica may be writing it right now (an upload's
+//! spool, an append's frame files, which are written before their rows).
 
 use std::path::Path;
+use std::time::{Duration, SystemTime};
 
 use crate::storage::Storage;
 use crate::store::Store;
@@ -34,6 +41,40 @@ impl Swept {
     pub fn is_empty(&self) -> bool {
         *self == Self::default()
     }
+}
+
+/// Whose leftovers a sweep may remove.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// The only process on its database: everything left over is a dead process's.
+    Alone,
+    /// Beside live replicas: only dead replicas' rows, only files untouched for `grace`.
+    Shared { grace: Duration },
+}
+
+impl Mode {
+    /// May the leftover at `path` go: always when alone; beside other replicas, when
+    /// nothing in it (the newest modification in its tree) changed for the grace period.
+    fn settled(self, path: &Path) -> bool {
+        match self {
+            Mode::Alone => true,
+            Mode::Shared { grace } => newest_change(path)
+                .and_then(|t| SystemTime::now().duration_since(t).ok())
+                .is_some_and(|age| age >= grace),
+        }
+    }
+}
+
+/// The newest modification time of `path` and everything under it (None when unreadable).
+fn newest_change(path: &Path) -> Option<SystemTime> {
+    let meta = std::fs::symlink_metadata(path).ok()?;
+    let mut newest = meta.modified().ok()?;
+    if meta.is_dir() {
+        for entry in std::fs::read_dir(path).ok()?.flatten() {
+            newest = newest.max(newest_change(&entry.path())?);
+        }
+    }
+    Some(newest)
 }
 
 /// Remove a folder and everything in it; a missing folder is fine. A background writer
@@ -92,29 +133,72 @@ fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
     }
 }
 
-/// Reconcile the data dir (and the bucket) with the store (run at start-up, before
-/// anything serves).
-pub async fn reconcile(store: &Store, data_dir: &Path, storage: &Storage) -> anyhow::Result<Swept> {
-    let mut out = Swept::default();
-    // Spooled uploads and unpack folders of requests that never finished.
-    remove_dir(&data_dir.join("tmp")).await?;
-    for (id, status) in store.hidden_scenes().await? {
+/// Finish the imports and deletes that dead processes left (all of them when `mode` is
+/// [`Mode::Alone`], only those of dead replicas beside others). Returns (imports undone,
+/// deletes finished).
+pub async fn finish_hidden(
+    store: &Store,
+    storage: &Storage,
+    mode: Mode,
+) -> anyhow::Result<(usize, usize)> {
+    let hidden = match mode {
+        Mode::Alone => store.hidden_scenes().await?,
+        Mode::Shared { .. } => store.hidden_scenes_of_dead().await?,
+    };
+    let mut out = (0, 0);
+    for (id, status) in hidden {
         finish_removal(store, storage, &id).await?;
         if status == "importing" {
-            out.imports_undone += 1;
+            out.0 += 1;
         } else {
-            out.deletes_finished += 1;
+            out.1 += 1;
         }
     }
+    Ok(out)
+}
+
+/// Reconcile the data dir (and the bucket) with the store (run at start-up, before
+/// anything serves); `mode` says whose leftovers these may be.
+pub async fn reconcile(
+    store: &Store,
+    data_dir: &Path,
+    storage: &Storage,
+    mode: Mode,
+) -> anyhow::Result<Swept> {
+    let mut out = Swept::default();
+    // Spooled uploads and unpack folders of requests that never finished.
+    let tmp = data_dir.join("tmp");
+    if mode == Mode::Alone {
+        remove_dir(&tmp).await?;
+    } else {
+        for name in entries(&tmp)? {
+            let path = tmp.join(name);
+            if mode.settled(&path) {
+                if path.is_dir() {
+                    remove_dir(&path).await?;
+                } else {
+                    let _ = std::fs::remove_file(&path);
+                }
+            }
+        }
+    }
+    (out.imports_undone, out.deletes_finished) = finish_hidden(store, storage, mode).await?;
+    // Rows are read after the folders are listed (below, per folder, beside others): a
+    // scene's row is written before its folder, so a folder listed without a row then is
+    // a leftover, not an import that began after the rows were read.
     let known = store.scene_ids().await?;
     // Local folders: scene folders (with a bucket, the cache) and, from the cache,
     // downloads and evictions cut short (`.<id>.part-*`, `.<id>.evicted-*`).
     let scenes_root = storage.scenes_root();
     for name in entries(&scenes_root)? {
         let dir = scenes_root.join(&name);
-        if !known.contains(&name) {
-            remove_dir(&dir).await?;
-            out.orphan_folders += 1;
+        let orphan =
+            !known.contains(&name) && (mode == Mode::Alone || !store.scene_exists(&name).await?);
+        if orphan {
+            if mode.settled(&dir) {
+                remove_dir(&dir).await?;
+                out.orphan_folders += 1;
+            }
             continue;
         }
         // Half-written files (previews are written as `<name>.tmp`, then renamed), and
@@ -124,6 +208,9 @@ pub async fn reconcile(store: &Store, data_dir: &Path, storage: &Storage) -> any
         for sub in ["color", "instance"] {
             for f in entries(&dir.join(sub))? {
                 let path = dir.join(sub).join(&f);
+                if !mode.settled(&path) {
+                    continue;
+                }
                 if f.ends_with(".tmp") {
                     let _ = std::fs::remove_file(path);
                     out.partial_files += 1;
@@ -135,7 +222,7 @@ pub async fn reconcile(store: &Store, data_dir: &Path, storage: &Storage) -> any
         }
     }
     for name in entries(&storage.artifacts_root())? {
-        if !store.job_exists(&name).await? {
+        if !store.job_exists(&name).await? && mode.settled(&storage.artifact_dir(&name)) {
             remove_dir(&storage.artifact_dir(&name)).await?;
             out.orphan_artifacts += 1;
         }
@@ -143,9 +230,11 @@ pub async fn reconcile(store: &Store, data_dir: &Path, storage: &Storage) -> any
     // The bucket: objects are written after their row exists and removed before it goes,
     // so objects without a row are left by a crash (or by a database that does not own
     // this bucket prefix: one prefix belongs to one database).
+    // Beside other replicas a scene created since `known` was read is asked for again
+    // (its row exists before its objects).
     let (scenes, jobs) = storage.remote_ids().await?;
     for id in scenes {
-        if !known.contains(&id) {
+        if !known.contains(&id) && (mode == Mode::Alone || !store.scene_exists(&id).await?) {
             storage.remove_remote(Some(&id), None).await?;
             out.orphan_objects += 1;
         }

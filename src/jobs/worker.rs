@@ -175,6 +175,17 @@ impl JobSystem {
         }
     }
 
+    /// Run `task` beside the workers, whatever the role; [`Self::shutdown`] waits for it
+    /// (it should end when [`Self::stopping`] is cancelled).
+    pub fn spawn_background(&self, task: impl std::future::Future<Output = ()> + Send + 'static) {
+        self.tracker.spawn(task);
+    }
+
+    /// Cancelled when the job system shuts down.
+    pub fn stopping(&self) -> CancellationToken {
+        self.shutdown.clone()
+    }
+
     /// Wait for one of the `max_concurrent_indexing` slots; held until dropped.
     pub async fn indexing_slot(&self) -> Option<tokio::sync::OwnedSemaphorePermit> {
         use std::sync::atomic::Ordering;

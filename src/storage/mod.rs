@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 pub use cache::CacheIndex;
-pub use remote::{local_files, Remote};
+pub use remote::{local_files, Remote, RemoteLimits};
 
 /// Default bound of the local scene cache with a bucket, MB.
 pub const DEFAULT_CACHE_MB: u64 = 10_240;
@@ -135,17 +135,29 @@ impl Storage {
     }
 
     /// Open the storage `spec` names; a bucket's cache lives under `data_dir` and is
-    /// bounded to `cache_bytes`. `env` supplies the `AWS_*` settings.
+    /// bounded to `cache_bytes`. `env` supplies the `AWS_*` settings. A bucket's requests
+    /// are bounded by the default [`RemoteLimits`].
     pub async fn open(
         spec: &str,
         data_dir: &Path,
         cache_bytes: u64,
         env: &[(String, String)],
     ) -> Result<Arc<Self>, StorageError> {
+        Self::open_with(spec, data_dir, cache_bytes, env, &RemoteLimits::default()).await
+    }
+
+    /// [`Self::open`] with a bucket's requests bounded by `limits`.
+    pub async fn open_with(
+        spec: &str,
+        data_dir: &Path,
+        cache_bytes: u64,
+        env: &[(String, String)],
+        limits: &RemoteLimits,
+    ) -> Result<Arc<Self>, StorageError> {
         match StorageSpec::parse(spec)? {
             StorageSpec::File(dir) => Ok(Self::local(dir.as_deref().unwrap_or(data_dir))),
             StorageSpec::S3 { bucket, prefix } => {
-                let remote = Remote::connect(&bucket, &prefix, env)?;
+                let remote = Remote::connect(&bucket, &prefix, env, limits)?;
                 let me = Arc::new(Self::new(data_dir.to_path_buf(), Some(remote), cache_bytes));
                 me.load_index()?;
                 me.evict().await;

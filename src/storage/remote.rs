@@ -4,11 +4,12 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Duration;
 
 use futures::{StreamExt, TryStreamExt};
 use object_store::aws::{AmazonS3Builder, AmazonS3ConfigKey};
 use object_store::path::Path as Key;
-use object_store::{ObjectStore, PutPayload};
+use object_store::{BackoffConfig, ClientOptions, ObjectStore, PutPayload, RetryConfig};
 
 use super::StorageError;
 
@@ -21,6 +22,38 @@ pub struct Remote {
     pub url: String,
 }
 
+/// How long a request to the bucket may take before it fails (settings
+/// `storage_connect_timeout_secs`, `storage_request_timeout_secs`, `storage_retries`,
+/// `storage_retry_timeout_secs`). A bucket that cannot be reached fails a request after
+/// at most `retries` more tries, none started later than `retry_timeout` after the first:
+/// within about `retry_timeout + request_timeout`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RemoteLimits {
+    pub connect_timeout: Duration,
+    pub request_timeout: Duration,
+    pub retries: usize,
+    pub retry_timeout: Duration,
+}
+
+impl Default for RemoteLimits {
+    fn default() -> Self {
+        Self {
+            connect_timeout: Duration::from_secs(5),
+            request_timeout: Duration::from_secs(60),
+            retries: 3,
+            retry_timeout: Duration::from_secs(15),
+        }
+    }
+}
+
+impl RemoteLimits {
+    /// The longest a failing request takes: every try but the last starts within
+    /// `retry_timeout`, and each lasts at most `request_timeout`.
+    pub fn worst_case(&self) -> Duration {
+        self.retry_timeout + self.request_timeout
+    }
+}
+
 fn err(what: impl std::fmt::Display, e: impl std::fmt::Display) -> StorageError {
     StorageError::Remote(format!("{what}: {e}"))
 }
@@ -28,13 +61,27 @@ fn err(what: impl std::fmt::Display, e: impl std::fmt::Display) -> StorageError 
 impl Remote {
     /// Connect to `bucket` with settings from the `AWS_*` variables of `env`
     /// (AWS_ENDPOINT_URL, AWS_REGION, AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY,
-    /// AWS_ALLOW_HTTP, ...). Nothing is contacted yet.
+    /// AWS_ALLOW_HTTP, ...), requests bounded by `limits`. Nothing is contacted yet.
     pub fn connect(
         bucket: &str,
         prefix: &str,
         env: &[(String, String)],
+        limits: &RemoteLimits,
     ) -> Result<Self, StorageError> {
-        let mut b = AmazonS3Builder::new().with_bucket_name(bucket);
+        // Client options first: the AWS_* variables below set some of them too
+        // (AWS_ALLOW_HTTP), and `with_client_options` would replace those.
+        let mut b = AmazonS3Builder::new()
+            .with_bucket_name(bucket)
+            .with_client_options(
+                ClientOptions::new()
+                    .with_connect_timeout(limits.connect_timeout)
+                    .with_timeout(limits.request_timeout),
+            )
+            .with_retry(RetryConfig {
+                backoff: BackoffConfig::default(),
+                max_retries: limits.retries,
+                retry_timeout: limits.retry_timeout,
+            });
         for (name, value) in env {
             if !name.starts_with("AWS_") {
                 continue;

@@ -46,13 +46,14 @@ impl Store {
             .bind(now - KEEP_SECS)
             .execute(&self.pool)
             .await?;
-        let inserted = sqlx::query(&self.sql("INSERT INTO idempotency (owner, route, key, body_sha256, created_at) VALUES (?,?,?,?,?) \
+        let inserted = sqlx::query(&self.sql("INSERT INTO idempotency (owner, route, key, body_sha256, created_at, holder) VALUES (?,?,?,?,?,?) \
              ON CONFLICT DO NOTHING"))
         .bind(owner)
         .bind(route)
         .bind(key)
         .bind(body_sha256)
         .bind(now)
+        .bind(self.replica.as_str())
         .execute(&self.pool)
         .await?
         .rows_affected();
@@ -131,7 +132,9 @@ impl Store {
         Ok(())
     }
 
-    /// At start-up: no request of a previous process is still in flight.
+    /// At start-up of the only process (SQLite): no request of a previous process is still
+    /// in flight. Replicas on PostgreSQL release only dead replicas' keys
+    /// ([`Store::idempotency_release_dead`]).
     pub async fn idempotency_release_in_flight(&self) -> Result<u64, StoreError> {
         Ok(
             sqlx::query(&self.sql("DELETE FROM idempotency WHERE status IS NULL"))

@@ -12,12 +12,19 @@ const SCENE_DELETED: &str =
 
 impl Store {
     /// Make an imported scene visible: `importing` turns `status`. False when the row is
-    /// no longer `importing` (it was swept).
+    /// no longer `importing` (it was swept). A scene turning `indexing` gets an ownerless
+    /// indexing lease: its indexer takes it at once; should this replica die first, any
+    /// replica takes the indexing over once it runs out (see `store::replicas`).
     pub async fn publish_scene(&self, id: &str, status: &str) -> Result<bool, StoreError> {
-        let r = sqlx::query(
-            &self.sql("UPDATE scenes SET status = ? WHERE id = ? AND status = 'importing'"),
-        )
+        let r = sqlx::query(&self.sql(format!(
+            "UPDATE scenes SET status = ?, index_owner = NULL, \
+             index_until = CASE WHEN ? = 'indexing' THEN {} + ? ELSE NULL END \
+             WHERE id = ? AND status = 'importing'",
+            super::replicas::clock_ms(self.backend)
+        )))
         .bind(status)
+        .bind(status)
+        .bind(self.lease_ms())
         .bind(id)
         .execute(&self.pool)
         .await?;

@@ -12,6 +12,7 @@ pub mod keys;
 pub mod lifecycle;
 pub mod notify;
 pub mod queue;
+pub mod replicas;
 pub mod scenes;
 pub mod webhooks;
 
@@ -26,6 +27,7 @@ pub use dialect::Backend;
 
 pub use jobs::{JobRecord, JobStatus, ListJobs, NewJobs};
 pub use keys::{KeyRecord, KeySpec, NewKey};
+pub use replicas::Claim;
 pub use scenes::SceneRecord;
 
 /// Handle to the database; cheap to clone.

@@ -121,8 +121,8 @@ impl Store {
         let mut tx = self.pool.begin().await?;
         let usable = scene.frames.iter().filter(|f| f.usable).count() as i64;
         sqlx::query(&self.sql("INSERT INTO scenes (id, name, layout, status, color_width, color_height, depth_width, depth_height, \
-             color_k, depth_k, axis_align, has_instances, frame_count, unusable_count, index_detector, index_done, index_total, created_at, owner, upload_bytes) \
-             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?,?,?)"))
+             color_k, depth_k, axis_align, has_instances, frame_count, unusable_count, index_detector, index_done, index_total, created_at, owner, upload_bytes, holder) \
+             VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,0,?,?,?,?,?)"))
         .bind(id)
         .bind(&scene.name)
         .bind(
@@ -146,6 +146,7 @@ impl Store {
         .bind(now_rfc3339())
         .bind(owner)
         .bind(upload_bytes as i64)
+        .bind(self.replica.as_str())
         .execute(&mut *tx)
         .await?;
         for f in &scene.frames {
@@ -263,7 +264,8 @@ impl Store {
             .bind(id)
             .execute(&mut *tx)
             .await?;
-        sqlx::query(&self.sql("UPDATE scenes SET status = 'deleting' WHERE id = ?"))
+        sqlx::query(&self.sql("UPDATE scenes SET status = 'deleting', holder = ? WHERE id = ?"))
+            .bind(self.replica.as_str())
             .bind(id)
             .execute(&mut *tx)
             .await?;

@@ -4,6 +4,7 @@
 //! and cancellation.
 
 mod bench_sse;
+mod compose;
 mod config;
 mod crash;
 mod depth_file;
@@ -23,12 +24,14 @@ mod llama_cpp;
 mod memory;
 mod openapi;
 mod pg_leases;
+mod pg_replicas;
 mod polling;
 mod postgres;
 mod problems;
 mod restart;
 mod scenes;
 mod storage;
+mod storage_timeouts;
 mod viewer;
 mod webhooks;
 

@@ -182,6 +182,21 @@ pub fn database(server: &str, key: &str) -> String {
     format!("{server}/{name}")
 }
 
+/// Run one SQL statement on `server` as the superuser; "already exists" is fine.
+pub fn run_sql(server: &str, sql: &str) {
+    let psql = pg_bin("psql").expect("psql (Debian package postgresql-client)");
+    let out = Command::new(psql)
+        .arg(format!("{server}/postgres"))
+        .args(["-q", "-v", "ON_ERROR_STOP=0", "-c", sql])
+        .output()
+        .expect("run psql");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.trim().is_empty() || err.contains("already exists"),
+        "{sql}: {err}"
+    );
+}
+
 /// The database the shared tests use for `data_dir`: None (SQLite in the data dir) unless
 /// this run is the PostgreSQL one.
 pub fn database_for(data_dir: &Path) -> Option<String> {

@@ -99,7 +99,7 @@ async fn objects(s: &Storage, rel: &str) -> std::collections::HashMap<String, u6
     s.remote().expect("a bucket").list(rel).await.expect("list")
 }
 
-fn copy_db(from: &Path, to: &Path) {
+pub(crate) fn copy_db(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).expect("mkdir");
     for f in ["grounder.db", "grounder.db-wal", "grounder.db-shm"] {
         if from.join(f).exists() {
