@@ -3,6 +3,7 @@
 //! both through one `sqlx::AnyPool`; see [`dialect`] for how SQL differs between them.
 
 pub mod cache;
+pub mod detections;
 pub mod dialect;
 pub mod events;
 pub mod frames;

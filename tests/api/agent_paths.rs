@@ -7,14 +7,14 @@ use grounder::vlm::prompts::{InstanceInput, Prompts, ReplyKind};
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
-const QUERY: &str = "the object the test is about";
+pub(crate) const QUERY: &str = "the object the test is about";
 
-fn prompts() -> Prompts {
+pub(crate) fn prompts() -> Prompts {
     Prompts::embedded()
 }
 
 /// GET an artifact URL and check it is a JPEG.
-async fn assert_jpeg(f: &Fixture, url: &str) {
+pub(crate) async fn assert_jpeg(f: &Fixture, url: &str) {
     let r = f.app.client.get(f.app.url(url)).send().await.unwrap();
     assert_eq!(r.status().as_u16(), 200, "{url}");
     assert_eq!(r.headers()["content-type"], "image/jpeg", "{url}");
@@ -243,170 +243,6 @@ async fn image_without_the_target_gets_object_not_existing() {
     assert_eq!(job["result"]["image_id"], format!("{good:05}"));
     assert_eq!(steps(&job, "summary")[0]["outputs"]["feedback_rounds"], 1);
     assert_trace_clean(&job);
-}
-
-/// The default configuration: the closed-vocabulary detector cannot see a whiteboard, so
-/// the chosen image's class-agnostic candidates (found from the scan at indexing) are drawn
-/// as numbered marks and the VLM picks one; the job ends with a box from the marks path.
-#[tokio::test]
-async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
-    let f = Fixture::start_with_candidates(vec![], 5_000, "centernet").await;
-    f.vlm.script_push(vec![
-        analysis("whiteboard"),
-        pick_image("00000"),
-        pick_object(0),
-    ]);
-    let job = f.run_job(QUERY).await;
-    assert_eq!(job["status"], "succeeded", "{job:#}");
-    assert_eq!(job["result"]["box_source"], "marks", "{:#}", job["result"]);
-    let cands = steps(&job, "candidates");
-    assert_eq!(cands.len(), 1, "{job:#}");
-    let out = &cands[0]["outputs"];
-    assert_eq!(out["from"], "index", "cached at indexing: {out:#}");
-    let listed = out["candidates"].as_array().cloned().unwrap_or_default();
-    assert!(!listed.is_empty(), "{out:#}");
-    let marks = steps(&job, "mark_selection");
-    assert_eq!(marks.len(), 1, "{job:#}");
-    let url = marks[0]["inputs"]["annotated"].as_str().unwrap_or_default();
-    assert!(url.contains("marks_00000_0.jpg"), "{url}");
-    assert_jpeg(&f, url).await;
-    let chosen = &marks[0]["outputs"]["box"];
-    assert_eq!(chosen, &listed[0]["box"], "the box of mark 0");
-    // The VLM saw the marks prompt with the regions listed.
-    let reqs = f.vlm.requests();
-    assert_eq!(reqs.len(), 3, "analysis, image, mark");
-    let text = reqs[2]["messages"]
-        .as_array()
-        .and_then(|m| m.last())
-        .map(|m| m.to_string())
-        .unwrap_or_default();
-    assert!(
-        text.contains("Task: mark selection") && text.contains("ID 0: box"),
-        "{text}"
-    );
-    assert!(steps(&job, "segmentation").len() == 1, "{job:#}");
-    assert_trace_clean(&job);
-}
-
-/// The ensemble views of a marks job take their boxes from their own cached candidates (the
-/// region holding the reprojected object), not only from the reprojected points; with
-/// `in_views` off they do not.
-#[tokio::test]
-async fn ensemble_views_take_the_candidate_that_holds_the_object() {
-    for in_views in [true, false] {
-        let f = Fixture::start_with_config(5_000, "centernet", |c| {
-            c.agent.candidates.enabled = true;
-            c.agent.candidates.in_views = in_views;
-        })
-        .await;
-        f.vlm.script_push(vec![
-            analysis("whiteboard"),
-            pick_image("00000"),
-            pick_object(0),
-        ]);
-        let job = f.run_job(QUERY).await;
-        assert_eq!(job["status"], "succeeded", "{job:#}");
-        let proj = steps(&job, "projection");
-        let views = proj[0]["outputs"]["views"]
-            .as_array()
-            .cloned()
-            .unwrap_or_default();
-        assert!(!views.is_empty(), "{:#}", proj[0]);
-        let mut from_candidates = 0;
-        for v in &views {
-            let idx: usize = v["image_id"].as_str().unwrap().parse().unwrap();
-            let cands = f
-                .store
-                .frame_candidates(&f.scene_id, idx)
-                .await
-                .unwrap()
-                .unwrap_or_default();
-            if v["box_from"] == "candidate" {
-                from_candidates += 1;
-                let b: Vec<f32> = serde_json::from_value(v["box"].clone()).unwrap();
-                assert!(
-                    cands.iter().any(|c| c.bbox.to_vec() == b),
-                    "view {idx}: {b:?} is not one of its candidates"
-                );
-            } else {
-                assert_eq!(v["box_from"], "footprint", "{v:#}");
-                assert_eq!(v["box"], v["footprint"], "{v:#}");
-            }
-        }
-        if in_views {
-            assert!(from_candidates > 0, "no view used a candidate: {views:#?}");
-        } else {
-            assert_eq!(from_candidates, 0, "{views:#?}");
-        }
-    }
-}
-
-/// No marked region outlines the target (an object of the wall's colour flush with it has
-/// no region of its own): the VLM says so, is asked for the box itself in the same image,
-/// and the job ends with a box from the VLM (`box_fallback`, on by default).
-#[tokio::test]
-async fn no_mark_outlines_the_target_so_the_vlm_draws_its_box() {
-    let f = Fixture::start_with_candidates(vec![], 5_000, "centernet").await;
-    f.vlm.script_push(vec![
-        analysis("whiteboard"),
-        pick_image("00000"),
-        Reply::ok(
-            serde_json::json!({"reasoning": "the board has no outline", "object_id": null})
-                .to_string(),
-        ),
-        Reply::ok(
-            serde_json::json!({"reasoning": "left of the door", "bbox_2d": [2, 2, 30, 30]})
-                .to_string(),
-        ),
-    ]);
-    let job = f.run_job(QUERY).await;
-    assert_eq!(job["status"], "succeeded", "{job:#}");
-    assert_eq!(
-        job["result"]["box_source"], "vlm_box",
-        "{:#}",
-        job["result"]
-    );
-    let marks = steps(&job, "mark_selection");
-    assert_eq!(marks.len(), 1, "{job:#}");
-    assert_eq!(marks[0]["outputs"]["none"], true, "{:#}", marks[0]);
-    let boxes = steps(&job, "vlm_box");
-    assert_eq!(boxes.len(), 1, "{job:#}");
-    assert_eq!(
-        boxes[0]["outputs"]["box"],
-        serde_json::json!([2.0, 2.0, 30.0, 30.0])
-    );
-    let seg = steps(&job, "segmentation");
-    assert_eq!(seg.len(), 1, "{job:#}");
-    assert_eq!(seg[0]["inputs"]["box"], boxes[0]["outputs"]["box"]);
-    // The box request followed the marks in the same conversation.
-    let reqs = f.vlm.requests();
-    assert_eq!(reqs.len(), 4, "analysis, image, marks, box");
-    let text = text_of(last_message(&reqs[3]));
-    assert!(text.contains("Task: object box"), "{text}");
-    let history = reqs[3]["messages"].to_string();
-    assert!(history.contains("Task: mark selection"), "{history}");
-    assert_trace_clean(&job);
-}
-
-/// With `box_fallback` off, "no region" sends the VLM to another image.
-#[tokio::test]
-async fn without_the_box_fallback_no_mark_means_not_in_this_image() {
-    let f = Fixture::start_with_config(5_000, "centernet", |c| {
-        c.agent.candidates.enabled = true;
-        c.agent.candidates.box_fallback = false;
-    })
-    .await;
-    f.vlm.script_push(vec![
-        analysis("whiteboard"),
-        pick_image("00000"),
-        Reply::ok(serde_json::json!({"reasoning": "not outlined", "object_id": null}).to_string()),
-    ]);
-    let job = f.run_job(QUERY).await;
-    let reqs = f.vlm.requests();
-    assert!(reqs.len() >= 4, "{} requests", reqs.len());
-    let fb = prompts().feedback_object_not_existing(0, "whiteboard");
-    assert_eq!(text_of(last_message(&reqs[3])), fb);
-    assert!(steps(&job, "vlm_box").is_empty(), "{job:#}");
 }
 
 #[tokio::test]

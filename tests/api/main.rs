@@ -36,6 +36,7 @@ mod viewer;
 mod webhooks;
 
 mod agent_fixture;
+mod agent_marks;
 mod agent_paths;
 mod agent_vlm_errors;
 mod fake_vlm;
