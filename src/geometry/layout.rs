@@ -19,10 +19,7 @@
 //!    frame faced (a scan circling the room and looking across it sees the walls along its
 //!    long side only beyond range) is placed where the measured points end along that axis:
 //!    the walls running up to it, and the floor, end there in `end_frames` frames or more
-//!    (the range ends each frame's points at a different place), and those ends lie short
-//!    of the sensor's range (by `range_margin`) or were read from different distances:
-//!    frames that stop at one place because the range stopped them say nothing of where
-//!    the wall is, and that side stays open.
+//!    (the range ends each frame's points at a different place).
 //!
 //! A side that was not found stays open: a ray leaving through it has no end.
 
@@ -143,8 +140,6 @@ pub struct RoomLayout {
 struct Sample {
     p: Point3<f64>,
     n: Vector3<f64>,
-    /// Its depth reading (m).
-    z: f64,
     /// The frame it was read in.
     frame: usize,
 }
@@ -209,7 +204,7 @@ fn sample_frame(
             }
             let n = (r.1 - l.1).cross(&(d.1 - u.1));
             if let Some(n) = n.try_normalize(1e-12) {
-                out.push(Sample { p, n, z, frame });
+                out.push(Sample { p, n, frame });
             }
         }
     }
@@ -396,28 +391,19 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
         // they faced it) still ends what the frames measured: where the walls along it and
         // the floor meet it. Several frames must end there: the range ends each frame's
         // points somewhere else, a wall ends them all at the same place.
-        // Frames that stop at the same place because the sensor's range stopped them say
-        // nothing of a wall (a 7 m room scanned from its middle with a 5 m sensor: the
-        // frames looking along its length from the same spot all stop about 5 m out, short
-        // of the wall). So the agreeing ends must either lie short of the range, or have
-        // been read from different distances (the range would have ended those at
-        // different places).
         let ends = &frame_ends[axis];
-        let end = |mut e: Vec<(f64, f64)>, limit: f64| {
-            e.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let first = e.first()?.0;
-            let agree: Vec<(f64, f64)> = e
+        let end = |mut e: Vec<f64>, limit: f64| {
+            e.sort_by(f64::total_cmp);
+            let first = *e.first()?;
+            let agree: Vec<f64> = e
                 .into_iter()
-                .take_while(|x| x.0 <= first + 3.0 * p.bin)
+                .take_while(|x| *x <= first + 3.0 * p.bin)
                 .collect();
-            let (near, far) = ext(&mut agree.iter().map(|x| x.1));
-            let not_range = near < range - p.range_margin || far - near >= p.range_margin;
-            (agree.len() >= p.end_frames.max(1) && first < limit && not_range)
-                .then(|| (agree[agree.len() / 2].0, false))
+            (agree.len() >= p.end_frames.max(1) && first < limit)
+                .then(|| (agree[agree.len() / 2], false))
         };
-        let end_lo = || end(ends.iter().map(|e| (e.lo, e.lo_depth)).collect(), lo);
-        let end_hi =
-            || end(ends.iter().map(|e| (-e.hi, e.hi_depth)).collect(), -hi).map(|(x, f)| (-x, f));
+        let end_lo = || end(ends.iter().map(|e| e.0).collect(), lo);
+        let end_hi = || end(ends.iter().map(|e| -e.1).collect(), -hi).map(|(x, f)| (-x, f));
         *sides = [
             outer_layer(&along, &[&lateral], true, lo, p)
                 .map(|w| (w, true))
@@ -436,10 +422,10 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
     ];
     let (u, v) = (u.map(|w| w.map(|w| w.0)), v.map(|w| w.map(|w| w.0)));
     let reach = [0, 1, 2].map(|axis| {
-        frame_ends[axis]
-            .iter()
+        let ends = &frame_ends[axis];
+        ends.iter()
             .fold([f64::INFINITY, f64::NEG_INFINITY], |[a, b], e| {
-                [a.min(e.lo), b.max(e.hi)]
+                [a.min(e.0), b.max(e.1)]
             })
     });
     Some(RoomLayout {
@@ -458,41 +444,24 @@ pub fn estimate_room(frames: &[(&FrameCamera, &DepthMap)], p: &LayoutParams) -> 
 /// Where each frame's samples end (see [`END_RANK`]) along u and v (turned by `angle`
 /// degrees) and z: for each of the three, one (low, high) pair per frame with enough
 /// samples, in frame order.
-fn frame_ends(samples: &[Sample], frames: usize, angle: f64) -> [Vec<FrameEnd>; 3] {
+fn frame_ends(samples: &[Sample], frames: usize, angle: f64) -> [Vec<(f64, f64)>; 3] {
     let (s, c) = angle.to_radians().sin_cos();
-    let mut per_frame: Vec<[Vec<(f64, f64)>; 3]> =
-        vec![[Vec::new(), Vec::new(), Vec::new()]; frames];
+    let mut per_frame: Vec<[Vec<f64>; 3]> = vec![[Vec::new(), Vec::new(), Vec::new()]; frames];
     for q in samples {
-        per_frame[q.frame][0].push((c * q.p.x + s * q.p.y, q.z));
-        per_frame[q.frame][1].push((-s * q.p.x + c * q.p.y, q.z));
-        per_frame[q.frame][2].push((q.p.z, q.z));
+        per_frame[q.frame][0].push(c * q.p.x + s * q.p.y);
+        per_frame[q.frame][1].push(-s * q.p.x + c * q.p.y);
+        per_frame[q.frame][2].push(q.p.z);
     }
-    let mut ends: [Vec<FrameEnd>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+    let mut ends: [Vec<(f64, f64)>; 3] = [Vec::new(), Vec::new(), Vec::new()];
     for f in per_frame.iter_mut() {
         for (axis, v) in f.iter_mut().enumerate() {
             if v.len() > 2 * END_RANK {
-                v.sort_by(|a, b| a.0.total_cmp(&b.0));
-                let (lo, hi) = (v[END_RANK], v[v.len() - 1 - END_RANK]);
-                ends[axis].push(FrameEnd {
-                    lo: lo.0,
-                    hi: hi.0,
-                    lo_depth: lo.1,
-                    hi_depth: hi.1,
-                });
+                v.sort_by(f64::total_cmp);
+                ends[axis].push((v[END_RANK], v[v.len() - 1 - END_RANK]));
             }
         }
     }
     ends
-}
-
-/// Where one frame's samples end along an axis, and the depth of the samples that end
-/// there.
-#[derive(Debug, Clone, Copy)]
-struct FrameEnd {
-    lo: f64,
-    hi: f64,
-    lo_depth: f64,
-    hi_depth: f64,
 }
 
 /// A frame's end along an axis is its sample of this rank from that end (0: the last; a
