@@ -34,5 +34,6 @@ mod webhooks;
 
 mod agent_fixture;
 mod agent_paths;
+mod agent_room;
 mod agent_vlm_errors;
 mod fake_vlm;
