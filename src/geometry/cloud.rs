@@ -216,7 +216,7 @@ pub(crate) fn outliers_and_neighbours(
         return (all(), None);
     }
     let nn = neighbour_lists(points, &build_tree(points), k);
-    let avg: Vec<f64> = nn.iter().map(|n| mean_distance(n)).collect();
+    let avg: Vec<f64> = nn.iter().map(mean_distance).collect();
     let valid = avg.iter().filter(|&&d| d >= 0.0).count();
     if valid < 2 {
         return (all(), Some(nn));

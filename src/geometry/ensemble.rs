@@ -270,6 +270,9 @@ pub fn fuse_clouds(
     }
 }
 
+/// A cloud, the indices of the points taken from it and its neighbour lists.
+type Known<'a> = (&'a [Point3<f64>], &'a [usize], &'a [Neighbours]);
+
 /// [`cluster_keep`] with cells no finer than three times the cloud's median neighbour
 /// spacing, so a sparse cloud (far away, low-resolution depth) is not cut into pieces.
 ///
@@ -277,7 +280,7 @@ pub fn fuse_clouds(
 /// for `sor_neighbors` (>= 2) nearest points, which spare most of the searches.
 fn drop_detached(
     points: Vec<Point3<f64>>,
-    known: Option<(&[Point3<f64>], &[usize], &[Neighbours])>,
+    known: Option<Known<'_>>,
     params: &GeometryParams,
 ) -> Vec<Point3<f64>> {
     if params.cluster_voxel <= 0.0 || points.len() < 10 {
