@@ -12,7 +12,6 @@ use super::conversation::Conversation;
 use super::instance::{self, SelectKind};
 use super::proposal::{not_here, BoxSource, Outcome};
 use super::{step, vlm_box, VlmGrounder};
-use crate::geometry::estimate_room;
 use crate::jobs::{JobContext, JobFailure};
 use crate::vision::candidates::{box_iou, frame_candidates};
 use crate::vision::Detection;
@@ -40,13 +39,10 @@ async fn candidates_of(
         g.params.geometry.layout.clone(),
     );
     let found = tokio::task::spawn_blocking(move || {
-        let frames: Vec<_> = scene
-            .usable_frames()
-            .map(|f| (&f.camera, f.depth.as_ref()))
-            .collect();
-        let room = lp.enabled.then(|| estimate_room(&frames, &lp)).flatten();
+        // The room is estimated once per loaded scene (shared with projection).
+        let room = lp.enabled.then(|| scene.room_layout(&lp)).flatten();
         let f = &scene.frames[idx];
-        frame_candidates(&f.camera, &f.depth, &img, room.as_ref(), &lp, &cp)
+        frame_candidates(&f.camera, &f.depth, &img, room.as_deref(), &lp, &cp)
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("candidate task failed: {e}")))?;

@@ -229,7 +229,7 @@ impl VlmGrounder {
         still_wanted(&ctx.cancel, "room layout")?;
         let layout = projection::room_layout(self, ctx, &analysis.target_class).await?;
         still_wanted(&ctx.cancel, "view pre-selection")?;
-        let pre = preselect::run(self, ctx, &analysis, layout.as_ref()).await?;
+        let pre = preselect::run(self, ctx, &analysis, layout.as_deref()).await?;
         still_wanted(&ctx.cancel, "stitching")?;
         let grids = stitching::run(self, ctx, &pre).await?;
         drop(slot);
@@ -253,11 +253,12 @@ impl VlmGrounder {
             "tokens": {"prompt": usage.prompt, "completion": usage.completion, "total": usage.total},
             "feedback_rounds": choice.feedback_rounds,
         });
+        // How many times this process estimated the scene's room layout so far: it is
+        // estimated once per loaded scene (at indexing, or by the first job needing it).
+        let mut traced = summary.clone();
+        traced["room_layout_estimates"] = json!(ctx.scene.room.estimates());
         ctx.trace
-            .step(
-                "summary",
-                json!({"outputs": summary.clone(), "ms": total_ms}),
-            )
+            .step("summary", json!({"outputs": traced, "ms": total_ms}))
             .await;
         let mut extra = serde_json::Map::new();
         extra.insert("image_id".into(), json!(format!("{:05}", choice.frame_idx)));

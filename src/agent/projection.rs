@@ -22,8 +22,8 @@ use crate::geometry::ensemble::{
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
-    cut_wall_leaks, estimate_room, fill_depth, snap_planar_to_wall, Aabb, GeometryParams, Mask,
-    RoomLayout, WallCut,
+    cut_wall_leaks, fill_depth, snap_planar_to_wall, Aabb, GeometryParams, Mask, RoomLayout,
+    WallCut,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -163,26 +163,22 @@ fn segment_points(
 
 /// The room's box (`geometry::estimate_room`) when the target is flat against a wall and
 /// the layout prior is on: where no frame measured such an object, its pixels end on the
-/// wall. Other objects stand somewhere in front of the wall, so for them it is not made.
+/// wall. Other objects stand somewhere in front of the wall, so for them it is not used.
+/// Estimated once per loaded scene (at indexing or by the first job that needs it) and
+/// shared: see [`crate::scene::RoomMemo`].
 pub async fn room_layout(
     g: &VlmGrounder,
     ctx: &JobContext,
     target_class: &str,
-) -> Result<Option<RoomLayout>, JobFailure> {
+) -> Result<Option<Arc<RoomLayout>>, JobFailure> {
     let params = g.params.geometry.clone();
     if !params.layout.enabled || !params.support.is_flat(target_class) {
         return Ok(None);
     }
     let scene = ctx.scene.clone();
-    tokio::task::spawn_blocking(move || {
-        let frames: Vec<_> = scene
-            .usable_frames()
-            .map(|f| (&f.camera, f.depth.as_ref()))
-            .collect();
-        estimate_room(&frames, &params.layout)
-    })
-    .await
-    .map_err(|e| JobFailure::new("internal", format!("layout task failed: {e}")))
+    tokio::task::spawn_blocking(move || scene.room_layout(&params.layout))
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("layout task failed: {e}")))
 }
 
 /// The anchor frame with the empty depth pixels inside `bbox` filled from the other usable
@@ -234,7 +230,7 @@ pub async fn run(
     target_class: &str,
     pre: &Preselection,
     choice: &Choice,
-    layout: Option<RoomLayout>,
+    layout: Option<Arc<RoomLayout>>,
 ) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
@@ -250,7 +246,7 @@ pub async fn run(
     let (sc, lay) = (scene.clone(), layout.clone());
     let (cloud, fill) = tokio::task::spawn_blocking(move || {
         // The anchor's empty depth pixels in the box, completed from the other frames.
-        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, lay.as_ref(), &params);
+        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, lay.as_deref(), &params);
         segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls).map(|c| (c, fill))
     })
     .await
@@ -302,7 +298,7 @@ pub async fn run(
                 depth: &sc.frames[i].depth,
             })
             .collect();
-        find_views_with_room(&ap, &cands, vr.as_ref(), &params)
+        find_views_with_room(&ap, &cands, vr.as_deref(), &params)
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("view search failed: {e}")))?;
@@ -373,9 +369,13 @@ pub async fn run(
                 .filter_map(|(i, b, _)| {
                     let img: &Arc<RgbImage> = decoded.get(i)?;
                     let (frame, fill) = match &view_room {
-                        Some(room) => {
-                            complete_depth(sc.frames[*i].clone(), *b, &[], Some(room), &params)
-                        }
+                        Some(room) => complete_depth(
+                            sc.frames[*i].clone(),
+                            *b,
+                            &[],
+                            Some(room.as_ref()),
+                            &params,
+                        ),
                         None => (sc.frames[*i].clone(), serde_json::Value::Null),
                     };
                     segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls)
@@ -439,7 +439,7 @@ pub async fn run(
                         &b,
                         anchor_kept,
                         &context,
-                        room.as_ref(),
+                        room.as_deref(),
                         eye,
                         flat_depth,
                         &params,

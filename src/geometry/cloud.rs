@@ -40,6 +40,19 @@ impl Hasher for VoxelHasher {
     }
 }
 
+/// `x.floor() as i64`, equal for every input (NaN and infinities included), without the
+/// libm call `floor` compiles to on the default x86-64 target (no SSE4.1).
+#[inline]
+pub(crate) fn floor_i64(x: f64) -> i64 {
+    // `as` truncates towards zero and saturates (NaN: 0).
+    let t = x as i64;
+    if (t as f64) > x {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
 /// One point per occupied voxel of side `voxel` (the centroid of that voxel's points),
 /// in order of first occurrence. `voxel <= 0` returns the input unchanged.
 pub fn voxel_downsample(points: &[Point3<f64>], voxel: f64) -> Vec<Point3<f64>> {
@@ -49,16 +62,26 @@ pub fn voxel_downsample(points: &[Point3<f64>], voxel: f64) -> Vec<Point3<f64>> 
     let mut slot: HashMap<(i64, i64, i64), usize, BuildHasherDefault<VoxelHasher>> =
         HashMap::with_capacity_and_hasher(points.len() / 4, Default::default());
     let mut sums: Vec<([f64; 3], u32)> = Vec::new();
+    // Clouds back-projected from depth come in pixel order, so runs of points share a
+    // voxel: the previous point's voxel is checked before the map.
+    let mut last: Option<((i64, i64, i64), usize)> = None;
     for p in points {
         let key = (
-            (p.x / voxel).floor() as i64,
-            (p.y / voxel).floor() as i64,
-            (p.z / voxel).floor() as i64,
+            floor_i64(p.x / voxel),
+            floor_i64(p.y / voxel),
+            floor_i64(p.z / voxel),
         );
-        let i = *slot.entry(key).or_insert_with(|| {
-            sums.push(([0.0; 3], 0));
-            sums.len() - 1
-        });
+        let i = match last {
+            Some((k, i)) if k == key => i,
+            _ => {
+                let i = *slot.entry(key).or_insert_with(|| {
+                    sums.push(([0.0; 3], 0));
+                    sums.len() - 1
+                });
+                last = Some((key, i));
+                i
+            }
+        };
         let s = &mut sums[i];
         s.0[0] += p.x;
         s.0[1] += p.y;
@@ -172,13 +195,31 @@ pub fn statistical_outlier_indices(
     nb_neighbors: usize,
     std_ratio: f64,
 ) -> Vec<usize> {
-    if nb_neighbors == 0 || points.len() < 2 {
-        return (0..points.len()).collect();
+    outliers_and_neighbours(points, nb_neighbors, std_ratio).0
+}
+
+/// A point's nearest points of a cloud: (squared distance, index), nearest first.
+pub(crate) type Neighbours = Vec<(f64, u32)>;
+
+/// [`statistical_outlier_indices`] and, when it computed them, every point's
+/// `nb_neighbors` nearest points (for [`neighbour_mean_distances_of_subset`]).
+pub(crate) fn outliers_and_neighbours(
+    points: &[Point3<f64>],
+    nb_neighbors: usize,
+    std_ratio: f64,
+) -> (Vec<usize>, Option<Vec<Neighbours>>) {
+    let all = || (0..points.len()).collect();
+    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
+        return (all(), None);
+    };
+    if points.len() < 2 {
+        return (all(), None);
     }
-    let avg = neighbour_mean_distances(points, nb_neighbors);
+    let nn = neighbour_lists(points, &build_tree(points), k);
+    let avg: Vec<f64> = nn.iter().map(mean_distance).collect();
     let valid = avg.iter().filter(|&&d| d >= 0.0).count();
     if valid < 2 {
-        return (0..points.len()).collect();
+        return (all(), Some(nn));
     }
     let mean = avg.iter().filter(|&&d| d > 0.0).sum::<f64>() / valid as f64;
     let sq: f64 = avg
@@ -188,9 +229,78 @@ pub fn statistical_outlier_indices(
         .sum();
     let std = (sq / (valid - 1) as f64).sqrt();
     let threshold = mean + std_ratio * std;
-    (0..points.len())
+    let kept = (0..points.len())
         .filter(|&i| avg[i] > 0.0 && avg[i] < threshold)
+        .collect();
+    (kept, Some(nn))
+}
+
+/// The `k` nearest points of `tree` to each of `points`, nearest first. kiddo keeps
+/// them in a binary heap here (its sorted vector, used when asked for sorted results, cost
+/// more than the search itself), sorted once at the end.
+fn neighbour_lists(points: &[Point3<f64>], tree: &Tree, k: NonZeroUsize) -> Vec<Neighbours> {
+    points
+        .par_iter()
+        .with_min_len(PAR_CHUNK)
+        .map(|p| {
+            let mut nn: Neighbours = tree
+                .nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], f64::INFINITY, k, false)
+                .into_iter()
+                .map(|n| (n.distance, n.item))
+                .collect();
+            nn.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            nn
+        })
         .collect()
+}
+
+/// Mean Euclidean distance of a neighbour list, summed nearest first (as the sorted
+/// search gave them, so the value is the same to the bit); -1 when empty.
+fn mean_distance(nn: &Neighbours) -> f64 {
+    if nn.is_empty() {
+        return -1.0;
+    }
+    nn.iter().map(|n| n.0.sqrt()).sum::<f64>() / nn.len() as f64
+}
+
+/// [`neighbour_mean_distances`] of the subset `kept` (indices into the cloud `nn` was
+/// computed on, with the same `nb_neighbors`): a point whose nearest points all stay keeps
+/// its value, since they are then its nearest points of the subset too; the others are
+/// searched again among the subset. Equal to `neighbour_mean_distances(subset)`.
+pub(crate) fn neighbour_mean_distances_of_subset(
+    points: &[Point3<f64>],
+    kept: &[usize],
+    nn: &[Neighbours],
+    nb_neighbors: usize,
+) -> Vec<f64> {
+    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
+        return vec![-1.0; kept.len()];
+    };
+    let mut stays = vec![false; points.len()];
+    for &i in kept {
+        stays[i] = true;
+    }
+    let reusable = |i: usize| nn[i].len() == k.get() && nn[i].iter().all(|n| stays[n.1 as usize]);
+    let mut out: Vec<f64> = kept
+        .iter()
+        .map(|&i| {
+            if reusable(i) {
+                mean_distance(&nn[i])
+            } else {
+                f64::NAN
+            }
+        })
+        .collect();
+    let redo: Vec<usize> = (0..kept.len()).filter(|&j| out[j].is_nan()).collect();
+    if !redo.is_empty() {
+        let subset: Vec<Point3<f64>> = kept.iter().map(|&i| points[i]).collect();
+        let queries: Vec<Point3<f64>> = redo.iter().map(|&j| subset[j]).collect();
+        let again = neighbour_lists(&queries, &build_tree(&subset), k);
+        for (j, n) in redo.into_iter().zip(&again) {
+            out[j] = mean_distance(n);
+        }
+    }
+    out
 }
 
 /// For each point, the mean Euclidean distance to its `nb_neighbors` nearest points of
@@ -202,18 +312,10 @@ pub fn neighbour_mean_distances(points: &[Point3<f64>], nb_neighbors: usize) -> 
     if points.is_empty() {
         return Vec::new();
     }
-    let tree = build_tree(points);
     // Queries are independent: split them over the cores (order and values unchanged).
-    points
-        .par_iter()
-        .with_min_len(PAR_CHUNK)
-        .map(|p| {
-            let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
-            if nn.is_empty() {
-                return -1.0;
-            }
-            nn.iter().map(|n| n.distance.sqrt()).sum::<f64>() / nn.len() as f64
-        })
+    neighbour_lists(points, &build_tree(points), k)
+        .iter()
+        .map(mean_distance)
         .collect()
 }
 
@@ -347,5 +449,155 @@ mod tests {
             s.iter().map(|q| q.x as i32).collect::<Vec<_>>(),
             vec![0, 2, 4, 6, 8]
         );
+    }
+
+    /// Noisy points on three touching planes plus strays, from a fixed-seed generator;
+    /// coordinates on a millimetre grid so that equal distances (ties) occur.
+    fn cloud(n: usize, seed: u64) -> Vec<Point3<f64>> {
+        let mut x = seed;
+        let mut r = move || {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (x >> 33) as f64 / (1u64 << 31) as f64
+        };
+        (0..n)
+            .map(|i| {
+                let (a, b, c) = (r(), r(), 0.01 * r());
+                let p = match i % 4 {
+                    0 => [a, b, c],
+                    1 => [a, c, b],
+                    2 => [c, a, b],
+                    _ => [3.0 * a - 1.0, 3.0 * b - 1.0, 3.0 * r() - 1.0],
+                };
+                Point3::new(
+                    (p[0] * 1000.0).round() / 1000.0,
+                    (p[1] * 1000.0).round() / 1000.0,
+                    (p[2] * 1000.0).round() / 1000.0,
+                )
+            })
+            .collect()
+    }
+
+    /// The distances as kiddo's sorted search gives them (the code before the heap).
+    fn sorted_search_means(points: &[Point3<f64>], k: usize) -> Vec<f64> {
+        let tree = build_tree(points);
+        let k = NonZeroUsize::new(k).unwrap();
+        points
+            .iter()
+            .map(|p| {
+                let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
+                nn.iter().map(|n| n.distance.sqrt()).sum::<f64>() / nn.len() as f64
+            })
+            .collect()
+    }
+
+    #[test]
+    fn neighbour_means_equal_the_sorted_search_to_the_bit() {
+        for (n, k) in [(3000, 20), (500, 2), (7, 20)] {
+            let pts = cloud(n, n as u64);
+            let want = sorted_search_means(&pts, k);
+            let got = neighbour_mean_distances(&pts, k);
+            assert_eq!(
+                got.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+                "n = {n}, k = {k}"
+            );
+        }
+    }
+
+    #[test]
+    fn subset_means_reuse_the_neighbours_and_equal_a_fresh_search() {
+        let pts = cloud(3000, 7);
+        let (kept, nn) = outliers_and_neighbours(&pts, 20, 1.0);
+        let nn = nn.expect("neighbours computed");
+        assert!(
+            kept.len() < pts.len() && kept.len() > pts.len() / 2,
+            "some points are outliers: {} of {}",
+            kept.len(),
+            pts.len()
+        );
+        let subset: Vec<Point3<f64>> = kept.iter().map(|&i| pts[i]).collect();
+        let want = sorted_search_means(&subset, 20);
+        let got = neighbour_mean_distances_of_subset(&pts, &kept, &nn, 20);
+        assert_eq!(
+            got.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+            want.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
+        );
+        // The same indices as before the neighbour lists were kept.
+        let plain = statistical_outlier_indices(&pts, 20, 1.0);
+        assert_eq!(plain, kept);
+    }
+
+    #[test]
+    fn floor_without_libm_equals_floor() {
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            -1.0 - f64::EPSILON,
+            2.0f64.powi(53) + 2.0,
+            -(2.0f64.powi(53)) - 2.0,
+            2.0f64.powi(63),
+            -(2.0f64.powi(63)),
+            1e30,
+            -1e30,
+            f64::MAX,
+            f64::MIN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE,
+        ];
+        xs.extend((0..2000).map(|i| (i as f64 - 1000.0) * 0.0137 / 0.02));
+        for x in xs {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+    }
+
+    #[test]
+    fn voxel_downsample_of_runs_equals_the_plain_map() {
+        // Raster-ordered points (runs share voxels) and shuffled ones give the centroids
+        // a plain per-point map gives, in order of first occurrence.
+        let raster: Vec<Point3<f64>> = (0..4000)
+            .map(|i| {
+                Point3::new(
+                    (i % 80) as f64 * 0.003,
+                    (i / 80) as f64 * 0.003,
+                    1.0 - 0.0001 * i as f64,
+                )
+            })
+            .collect();
+        for pts in [raster, cloud(2000, 3)] {
+            let mut order: Vec<(i64, i64, i64)> = Vec::new();
+            let mut acc: HashMap<(i64, i64, i64), ([f64; 3], u32)> = HashMap::new();
+            for p in &pts {
+                let k = (
+                    (p.x / 0.02).floor() as i64,
+                    (p.y / 0.02).floor() as i64,
+                    (p.z / 0.02).floor() as i64,
+                );
+                let e = acc.entry(k).or_insert_with(|| {
+                    order.push(k);
+                    ([0.0; 3], 0)
+                });
+                e.0[0] += p.x;
+                e.0[1] += p.y;
+                e.0[2] += p.z;
+                e.1 += 1;
+            }
+            let want: Vec<Point3<f64>> = order
+                .iter()
+                .map(|k| {
+                    let (s, n) = acc[k];
+                    Point3::new(s[0] / n as f64, s[1] / n as f64, s[2] / n as f64)
+                })
+                .collect();
+            assert_eq!(voxel_downsample(&pts, 0.02), want);
+        }
     }
 }

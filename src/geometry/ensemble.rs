@@ -6,8 +6,8 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    chamfer_distance, cluster_keep, neighbour_mean_distances, remove_statistical_outliers,
-    subsample_even, voxel_downsample,
+    chamfer_distance, cluster_keep, neighbour_mean_distances, neighbour_mean_distances_of_subset,
+    outliers_and_neighbours, subsample_even, voxel_downsample, Neighbours,
 };
 use super::projection::{project_points, Projected, ProjectionError};
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask, RoomLayout};
@@ -241,8 +241,15 @@ pub fn fuse_clouds(
             carved_points = fused_points - fused.len();
         }
     }
-    let kept = remove_statistical_outliers(&fused, params.sor_neighbors, params.sor_std_ratio);
-    let kept = drop_detached(kept, params);
+    let (kept_idx, nn) =
+        outliers_and_neighbours(&fused, params.sor_neighbors, params.sor_std_ratio);
+    let kept: Vec<Point3<f64>> = kept_idx.iter().map(|&i| fused[i]).collect();
+    // The outlier removal's neighbours serve the spacing of `drop_detached` (same count).
+    let spacing_from = nn
+        .as_deref()
+        .filter(|_| params.sor_neighbors >= 2)
+        .map(|nn| (fused.as_slice(), kept_idx.as_slice(), nn));
+    let kept = drop_detached(kept, spacing_from, params);
     let (aabb, flattened) = match trimmed_box(&kept, params.box_trim) {
         Some(b) => {
             let (b, axes) = flatten_noisy_planes(b, &kept, params.plane_iqr);
@@ -263,16 +270,28 @@ pub fn fuse_clouds(
     }
 }
 
+/// A cloud, the indices of the points taken from it and its neighbour lists.
+type Known<'a> = (&'a [Point3<f64>], &'a [usize], &'a [Neighbours]);
+
 /// [`cluster_keep`] with cells no finer than three times the cloud's median neighbour
 /// spacing, so a sparse cloud (far away, low-resolution depth) is not cut into pieces.
-fn drop_detached(points: Vec<Point3<f64>>, params: &GeometryParams) -> Vec<Point3<f64>> {
+///
+/// `known`: the cloud `points` was taken from, their indices in it, and its neighbour lists
+/// for `sor_neighbors` (>= 2) nearest points, which spare most of the searches.
+fn drop_detached(
+    points: Vec<Point3<f64>>,
+    known: Option<Known<'_>>,
+    params: &GeometryParams,
+) -> Vec<Point3<f64>> {
     if params.cluster_voxel <= 0.0 || points.len() < 10 {
         return points;
     }
-    let mut d: Vec<f64> = neighbour_mean_distances(&points, params.sor_neighbors.max(2))
-        .into_iter()
-        .filter(|d| *d >= 0.0)
-        .collect();
+    let k = params.sor_neighbors.max(2);
+    let mean = match known {
+        Some((cloud, kept, nn)) => neighbour_mean_distances_of_subset(cloud, kept, nn, k),
+        None => neighbour_mean_distances(&points, k),
+    };
+    let mut d: Vec<f64> = mean.into_iter().filter(|d| *d >= 0.0).collect();
     d.sort_by(f64::total_cmp);
     let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
     let keep = cluster_keep(

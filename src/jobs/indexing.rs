@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
-use crate::geometry::{estimate_room, LayoutParams, RoomLayout};
+use crate::geometry::{LayoutParams, RoomLayout};
 use crate::jobs::JobSystem;
 use crate::scene::FrameData;
 use crate::store::{Claim, Store, StoreError};
@@ -316,10 +316,14 @@ async fn index_scene(
         .acquire_scene(scene_id)
         .await
         .map_err(|e| anyhow::anyhow!("{}", e.detail))?;
-    let scene = store
-        .load_scene(scene_id, &jobs.scene_dir(scene_id))
-        .await?
-        .ok_or_else(|| anyhow::anyhow!("scene {scene_id} vanished"))?;
+    // Taken before loading: a scene forgotten meanwhile (frames changed) is not handed on.
+    let mark = jobs.scene_cache().mark();
+    let scene = Arc::new(
+        store
+            .load_scene(scene_id, &jobs.scene_dir(scene_id))
+            .await?
+            .ok_or_else(|| anyhow::anyhow!("scene {scene_id} vanished"))?,
+    );
     let labels: Option<HashMap<u32, String>> = scene
         .instance_labels
         .clone()
@@ -328,18 +332,12 @@ async fn index_scene(
     if from == 0 {
         store.reset_index(scene_id, key, usable.len()).await?;
     }
-    // The room's box, from every frame's depth, tells structure from objects.
+    // The room's box, from every frame's depth, tells structure from objects. It is kept
+    // with the scene, which later jobs get (below), so they need not estimate it again.
     let room: Option<Arc<RoomLayout>> = match &candidates {
         Some(setup) if setup.layout.enabled => {
-            let (frames, lp) = (usable.clone(), setup.layout.clone());
-            tokio::task::spawn_blocking(move || {
-                let pairs: Vec<_> = frames
-                    .iter()
-                    .map(|f| (&f.camera, f.depth.as_ref()))
-                    .collect();
-                estimate_room(&pairs, &lp).map(Arc::new)
-            })
-            .await?
+            let (sc, lp) = (scene.clone(), setup.layout.clone());
+            tokio::task::spawn_blocking(move || sc.room_layout(&lp)).await?
         }
         _ => None,
     };
@@ -366,5 +364,7 @@ async fn index_scene(
         .sync_scene(scene_id)
         .await
         .map_err(|e| anyhow::anyhow!("the previews cannot be stored: {e}"))?;
+    jobs.scene_cache()
+        .put_unless_forgotten(scene_id, scene, mark);
     Ok(())
 }

@@ -48,6 +48,8 @@ struct Inner {
     live: HashMap<String, Weak<SceneData>>,
     /// One lock per scene being loaded (single flight).
     loading: HashMap<String, Arc<tokio::sync::Mutex<()>>>,
+    /// Scenes forgotten so far (see [`SceneCache::put_unless_forgotten`]).
+    forgets: u64,
 }
 
 /// See the module documentation.
@@ -94,8 +96,12 @@ impl SceneCache {
 
     /// Record a freshly loaded scene: shared while held, kept within the byte bound.
     pub fn put(&self, id: &str, scene: Arc<SceneData>) {
-        let bytes = scene_bytes(&scene);
         let mut g = self.lock();
+        self.put_locked(&mut g, id, scene);
+    }
+
+    fn put_locked(&self, g: &mut Inner, id: &str, scene: Arc<SceneData>) {
+        let bytes = scene_bytes(&scene);
         g.live.retain(|_, w| w.strong_count() > 0);
         g.live.insert(id.to_string(), Arc::downgrade(&scene));
         g.kept.retain(|(k, _, _)| k != id);
@@ -110,11 +116,34 @@ impl SceneCache {
         }
     }
 
-    /// Forget a scene (deleted): neither kept nor handed to later jobs.
+    /// Forget a scene (deleted, or its frames changed): neither kept nor handed to later
+    /// jobs.
     pub fn remove(&self, id: &str) {
         let mut g = self.lock();
         g.kept.retain(|(k, _, _)| k != id);
         g.live.remove(id);
+        g.forgets += 1;
+    }
+
+    /// A mark to take before loading a scene outside the cache (see
+    /// [`SceneCache::put_unless_forgotten`]).
+    pub fn mark(&self) -> u64 {
+        self.lock().forgets
+    }
+
+    /// Offer a scene loaded outside the cache (indexing's copy, with its room layout) to
+    /// later jobs, unless the cache already has one or any scene was forgotten since
+    /// `mark` was taken (its frames may have changed after this copy was loaded). Whether
+    /// it was put.
+    pub fn put_unless_forgotten(&self, id: &str, scene: Arc<SceneData>, mark: u64) -> bool {
+        let mut g = self.lock();
+        let held = g.kept.iter().any(|(k, _, _)| k == id)
+            || g.live.get(id).is_some_and(|w| w.strong_count() > 0);
+        if g.forgets != mark || held {
+            return false;
+        }
+        self.put_locked(&mut g, id, scene);
+        true
     }
 
     /// Bytes of the scenes kept (not counting those only jobs hold).
@@ -199,6 +228,7 @@ mod tests {
             axis_align: None,
             frames,
             instance_labels: None,
+            room: Default::default(),
         }
     }
 
@@ -249,6 +279,23 @@ mod tests {
         let (a, b) = (scene_bytes(&owned), scene_bytes(&mapped));
         assert_eq!(a - b, 10 * 100 * 100 * 2, "{a} vs {b}");
         assert!(b < 10_000, "records only: {b}");
+    }
+
+    #[test]
+    fn a_scene_loaded_outside_is_kept_unless_forgotten_since() {
+        let c = SceneCache::new(1 << 30);
+        let mark = c.mark();
+        let s = Arc::new(scene("a", 2));
+        assert!(c.put_unless_forgotten("a", s.clone(), mark));
+        assert!(c.get("a").is_some_and(|g| Arc::ptr_eq(&g, &s)));
+        // Already there: the cached copy stays.
+        assert!(!c.put_unless_forgotten("a", Arc::new(scene("a", 2)), c.mark()));
+        assert!(c.get("a").is_some_and(|g| Arc::ptr_eq(&g, &s)));
+        // Loaded, then the scene's frames changed (it was forgotten): not kept.
+        let mark = c.mark();
+        c.remove("a");
+        assert!(!c.put_unless_forgotten("a", Arc::new(scene("a", 2)), mark));
+        assert!(c.get("a").is_none());
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

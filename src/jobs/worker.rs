@@ -251,6 +251,12 @@ impl JobSystem {
         self.points.forget_scene(scene_id);
     }
 
+    /// The scene cache, for indexing to hand its loaded scene (with the room layout it
+    /// estimated) to later jobs.
+    pub(crate) fn scene_cache(&self) -> &SceneCache {
+        &self.cache
+    }
+
     pub(crate) fn points_cache(&self) -> &super::exports::PointsCache {
         &self.points
     }

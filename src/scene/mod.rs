@@ -8,8 +8,10 @@ pub mod format;
 pub mod formats;
 pub mod import;
 pub mod model;
+pub mod room;
 
 pub use model::{FrameData, SceneData};
+pub use room::RoomMemo;
 
 /// Why a scene cannot be imported. Every variant names what is wrong for the uploader.
 #[derive(Debug, thiserror::Error)]

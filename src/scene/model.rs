@@ -42,6 +42,9 @@ pub struct SceneData {
     pub frames: Vec<FrameData>,
     /// Instance labels (evaluation only): instance id -> label.
     pub instance_labels: Option<std::collections::BTreeMap<u32, String>>,
+    /// The room's layout, estimated once for all the jobs holding this scene
+    /// ([`SceneData::room_layout`]).
+    pub room: super::RoomMemo,
 }
 
 impl SceneData {

@@ -368,6 +368,7 @@ impl Store {
             axis_align: align,
             frames,
             instance_labels,
+            room: Default::default(),
         }))
     }
 }

@@ -225,6 +225,10 @@ impl OrtModel {
                         .map_err(Into::into)
                 })
                 .and_then(|b| b.with_inter_threads(1).map_err(Into::into))
+                // Idle intra-op threads sleep instead of spinning: on a machine whose cores
+                // the service shares (indexing decodes the next frame while a model runs),
+                // spinning burns CPU that other work needs (#18, docs/performance.md).
+                .and_then(|b| b.with_intra_op_spinning(false).map_err(Into::into))
                 .and_then(|mut b| commit(&mut b))
                 .map_err(|e| anyhow!("cannot load model file {}: {e}", path.display()))?;
             sessions.push(Mutex::new(session));

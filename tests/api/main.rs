@@ -38,5 +38,6 @@ mod webhooks;
 mod agent_fixture;
 mod agent_marks;
 mod agent_paths;
+mod agent_room;
 mod agent_vlm_errors;
 mod fake_vlm;
