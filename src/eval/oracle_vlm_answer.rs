@@ -393,7 +393,11 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             let best = resolved
                 .as_ref()
                 .and_then(|(q, s)| best_candidate_iou(s.as_deref()?, q.target_id, conv));
-            if conv.marks && kind == u8::MAX && best.is_some_and(|(_, v)| v < MARK_MATCH_IOU) {
+            // No region outlines the target, none even touches it, or the target is not in
+            // this frame: a careful reader answers that none is the target rather than
+            // picking an unrelated region.
+            let none_fits = resolved.is_some() && best.is_none_or(|(_, v)| v < MARK_MATCH_IOU);
+            if conv.marks && kind == u8::MAX && none_fits {
                 return json!({"reasoning": "oracle: no region outlines the target", "object_id": null})
                     .to_string();
             }

@@ -211,6 +211,15 @@ async fn marks_answer_a_region_that_outlines_the_target_else_none() {
         .await
         .unwrap();
     assert!(parse_no_object(&r.text).is_some(), "{}", r.text);
+    // No region touches the target at all (a window the colour of its wall has no region
+    // of its own): still none, not the first region.
+    let apart = [[0.0, 0.0, 8.0, 8.0], [0.0, 16.0, 6.0, 24.0]];
+    let r = f
+        .client
+        .chat(&[marks_msg(&f.prompts, &apart)], &b)
+        .await
+        .unwrap();
+    assert!(parse_no_object(&r.text).is_some(), "{}", r.text);
     // Instance selection among detections has no "none": the best overlap is picked.
     let text = f.prompts.instance_selection(&InstanceInput {
         query: TEXT,
