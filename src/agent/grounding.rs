@@ -1,6 +1,8 @@
 //! Stage 4: grounding with feedback (paper Sec. 3.3). The VLM picks an image id from the
 //! stitched grids; an invalid id, a frame without the target class, an unparsable reply or
-//! an invalid object id gets a feedback turn, at most `max_retries` in all.
+//! an invalid object id gets a feedback turn, at most `max_retries` in all. The VLM may
+//! also answer that none of the offered frames shows the target ([`Grounded::NoneOffered`]):
+//! the caller then offers the frames the detector's pre-selection left out.
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -15,7 +17,7 @@ use super::vlm_log::VlmLog;
 use super::{step, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
 use crate::vision::{DetectInput, Detection, InstanceMask};
-use crate::vlm::json::{parse_grounding, QueryAnalysis};
+use crate::vlm::json::{parse_grounding, parse_no_image, QueryAnalysis};
 use crate::vlm::prompts::{GroundingInput, ReplyKind};
 use crate::vlm::{CallBudget, ImageData, Message, VlmStep};
 
@@ -28,6 +30,15 @@ pub struct Choice {
     pub feedback_rounds: usize,
     /// Which path gave the box.
     pub source: BoxSource,
+}
+
+/// What grounding ended with.
+#[derive(Debug)]
+pub enum Grounded {
+    /// A frame and a box in it.
+    Chosen(Choice),
+    /// The VLM saw the target in none of the offered frames (its reasoning).
+    NoneOffered(String),
 }
 
 /// Run the detector on one frame (with ground truth for the oracle detector).
@@ -85,7 +96,7 @@ async fn fail_with_trace(
     e: JobFailure,
     exchanges: Vec<Value>,
     t: Instant,
-) -> Result<Choice, JobFailure> {
+) -> Result<Grounded, JobFailure> {
     step(
         ctx,
         "image_selection",
@@ -106,7 +117,7 @@ pub async fn run(
     analysis: &QueryAnalysis,
     pre: &Preselection,
     grids: &Grids,
-) -> Result<Choice, JobFailure> {
+) -> Result<Grounded, JobFailure> {
     let t = Instant::now();
     let offered: Vec<u32> = pre.frames.iter().map(|&i| i as u32).collect();
     let text = g.prompts.grounding_input(&GroundingInput {
@@ -139,6 +150,18 @@ pub async fn run(
             Ok(r) => r,
             Err(e) => return fail_with_trace(ctx, e, exchanges, t).await,
         };
+        if let Some(reasoning) = parse_no_image(&reply) {
+            exchanges.push(rec);
+            step(
+                ctx,
+                "image_selection",
+                json!({"offered": offered.len()}),
+                json!({"none": true, "reasoning": reasoning, "vlm": exchanges}),
+                t,
+            )
+            .await;
+            return Ok(Grounded::NoneOffered(reasoning));
+        }
         let answer = match parse_grounding(&reply) {
             Ok(a) => a,
             Err(e) => {
@@ -185,13 +208,13 @@ pub async fn run(
             .ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?;
         match propose(g, ctx, budget, &mut conv, analysis, pre, idx, &image).await? {
             Outcome::Box(bbox, source) => {
-                return Ok(Choice {
+                return Ok(Grounded::Chosen(Choice {
                     frame_idx: idx,
                     bbox,
                     image,
                     feedback_rounds: conv.rounds,
                     source,
-                });
+                }));
             }
             Outcome::NotHere { feedback, why } => {
                 exchanges.push(json!({"feedback": feedback, "invalid": why}));

@@ -229,12 +229,34 @@ impl VlmGrounder {
         still_wanted(&ctx.cancel, "room layout")?;
         let layout = projection::room_layout(self, ctx, &analysis.target_class).await?;
         still_wanted(&ctx.cancel, "view pre-selection")?;
-        let pre = preselect::run(self, ctx, &analysis, layout.as_deref()).await?;
+        let mut pre = preselect::run(self, ctx, &analysis, layout.as_deref()).await?;
         still_wanted(&ctx.cancel, "stitching")?;
-        let grids = stitching::run(self, ctx, &pre).await?;
+        let mut grids = stitching::run(self, ctx, &pre).await?;
         drop(slot);
-        still_wanted(&ctx.cancel, "grounding")?;
-        let choice = grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await?;
+        let choice = loop {
+            still_wanted(&ctx.cancel, "grounding")?;
+            match grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await? {
+                grounding::Grounded::Chosen(c) => break c,
+                grounding::Grounded::NoneOffered(why) => {
+                    // Once: the frames the detector left out, else the VLM's "not here".
+                    let slot = self.compute_slot(ctx).await?;
+                    let wider =
+                        match preselect::widened(self, ctx, &analysis, &pre).await {
+                            Some(w) => w,
+                            _ => return Err(JobFailure::new(
+                                "target_not_found",
+                                format!(
+                                    "the VLM saw the target in none of the offered frames: {why}"
+                                ),
+                            )),
+                        };
+                    still_wanted(&ctx.cancel, "stitching")?;
+                    grids = stitching::run(self, ctx, &wider).await?;
+                    pre = wider;
+                    drop(slot);
+                }
+            }
+        };
         // The grids' JPEGs are on disk as artifacts; the rest of the job does not need them.
         drop(grids);
         let slot = self.compute_slot(ctx).await?;

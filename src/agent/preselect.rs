@@ -20,6 +20,8 @@ pub struct Preselection {
     pub detector_class: Option<String>,
     /// Why the fallback was used, if it was.
     pub fallback: Option<String>,
+    /// 0 for the first offer, 1 once widened ([`widened`]): names the grids apart.
+    pub round: usize,
 }
 
 /// Does a detection label name the detector class (compared in normalised form)?
@@ -34,6 +36,57 @@ pub fn evenly_sampled(items: &[usize], n: usize) -> Vec<usize> {
         return items.to_vec();
     }
     (0..n).map(|i| items[i * items.len() / n]).collect()
+}
+
+/// After the VLM saw the target in none of `previous`'s frames, which the detector chose
+/// (a detector's false detections of the class in other frames, or its misses of the
+/// target itself, leave the target out): the usable frames not offered yet, evenly sampled
+/// as in the class-agnostic fallback. `None` when the detector did not choose the frames
+/// (they already were the fallback) or none is left.
+pub async fn widened(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    analysis: &QueryAnalysis,
+    previous: &Preselection,
+) -> Option<Preselection> {
+    if previous.fallback.is_some() {
+        return None;
+    }
+    let t = Instant::now();
+    let rest: Vec<usize> = ctx
+        .scene
+        .usable_frames()
+        .map(|f| f.idx)
+        .filter(|i| !previous.frames.contains(i))
+        .collect();
+    if rest.is_empty() {
+        return None;
+    }
+    let frames = evenly_sampled(&rest, g.params.fallback_frames);
+    let fallback = format!(
+        "the VLM saw the target in none of the {} frames with a {:?} detection; offering frames without one",
+        previous.frames.len(),
+        previous.detector_class.as_deref().unwrap_or_default()
+    );
+    let names: Vec<&str> = frames
+        .iter()
+        .map(|&i| ctx.scene.frames[i].name.as_str())
+        .collect();
+    let image_ids: Vec<String> = frames.iter().map(|i| format!("{i:05}")).collect();
+    step(
+        ctx,
+        "preselection",
+        json!({"target_class": analysis.target_class, "widened_from": previous.frames.len()}),
+        json!({"detector_class": previous.detector_class, "image_ids": image_ids, "frames": names, "fallback": fallback}),
+        t,
+    )
+    .await;
+    Some(Preselection {
+        frames,
+        detector_class: previous.detector_class.clone(),
+        fallback: Some(fallback),
+        round: previous.round + 1,
+    })
 }
 
 /// `layout`: the room's box when the target is flat against a wall; then a detection's
@@ -135,6 +188,7 @@ pub async fn run(
         frames,
         detector_class: class,
         fallback,
+        round: 0,
     })
 }
 

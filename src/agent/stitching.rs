@@ -108,7 +108,7 @@ pub async fn run(
     for (k, img) in images.iter().enumerate() {
         urls.push(
             ctx.trace
-                .artifact(&format!("grid_{k}.jpg"), img.jpeg.clone())
+                .artifact(&grid_name(pre.round, k), img.jpeg.clone())
                 .await?,
         );
     }
@@ -120,4 +120,14 @@ pub async fn run(
     let previews = from_preview.iter().filter(|&&p| p).count();
     step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": decode_ms, "render_ms": render_ms, "from_previews": previews}), t).await;
     Ok(Grids { images, urls })
+}
+
+/// Artifact name of grid `k`; a widened offer ([`super::preselect::widened`]) keeps the
+/// first offer's grids.
+fn grid_name(round: usize, k: usize) -> String {
+    if round == 0 {
+        format!("grid_{k}.jpg")
+    } else {
+        format!("grid_r{round}_{k}.jpg")
+    }
 }

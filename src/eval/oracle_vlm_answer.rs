@@ -362,6 +362,21 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
                    "target_image_id": "none", "reference_image_ids": []})
             .to_string()
         }
+        Mode::Grounding
+            if kind == u8::MAX
+                && conv.offered.as_deref().is_some_and(|o| {
+                    resolved.as_ref().is_some_and(|(q, s)| {
+                        s.as_deref()
+                            .is_some_and(|s| o.iter().all(|&i| s.pixels(i, q.target_id) == 0))
+                    })
+                }) =>
+        {
+            // No offered frame shows the target (the detector's pre-selection left it out):
+            // say so, as the prompt allows, and the service offers the other frames.
+            json!({"reasoning": "oracle: no offered frame shows the target",
+                   "target_image_id": null, "reference_image_ids": []})
+            .to_string()
+        }
         Mode::Grounding => {
             let offered = conv.offered.as_deref();
             let best = resolved

@@ -330,8 +330,19 @@ pub fn parse_grounding(text: &str) -> Result<GroundingAnswer, JsonError> {
 /// A set-of-marks reply saying that no offered region is the target: `object_id` is null,
 /// or a word such as "none" without a number. The reasoning comes back with it.
 pub fn parse_no_object(text: &str) -> Option<String> {
+    parse_none(text, "object_id")
+}
+
+/// A grounding reply saying that none of the offered frames shows the target:
+/// `target_image_id` is null, or a word such as "none" without a number.
+pub fn parse_no_image(text: &str) -> Option<String> {
+    parse_none(text, "target_image_id")
+}
+
+/// `field` is present and says "none": null, or a word without a digit.
+fn parse_none(text: &str, field: &str) -> Option<String> {
     let v = extract_json(text).ok()?;
-    let none = match v.get("object_id")? {
+    let none = match v.get(field)? {
         Value::Null => true,
         Value::String(s) => {
             let s = s.trim().to_ascii_lowercase();

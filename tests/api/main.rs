@@ -40,4 +40,5 @@ mod agent_marks;
 mod agent_paths;
 mod agent_room;
 mod agent_vlm_errors;
+mod agent_widen;
 mod fake_vlm;

@@ -1,7 +1,9 @@
 //! The oracle VLM on hand-made scenes, driven by the real client and the real prompts.
 
 use grounder::eval::oracle_vlm::{router, OracleVlmArgs};
-use grounder::vlm::json::{parse_grounding, parse_instance, parse_no_object, parse_query_analysis};
+use grounder::vlm::json::{
+    parse_grounding, parse_instance, parse_no_image, parse_no_object, parse_query_analysis,
+};
 use grounder::vlm::prompts::{GroundingInput, InstanceInput, Prompts};
 use grounder::vlm::{CallBudget, ImageData, Message, VlmClient, VlmConfig};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
@@ -251,10 +253,19 @@ async fn same_text_in_two_scenes_is_told_apart_by_images() {
         .await
         .unwrap();
     assert_eq!(parse_instance(&r.text).unwrap().object_id, 0);
-    // Grounding in scene 1: target 6 is only in frame 1; offered 0 and 2 only → best overall.
+    // Grounding in scene 1: target 6 is only in frame 1; offered 0 and 2 only → no offered
+    // frame shows it, and the oracle says so (the service then offers the other frames).
     let r = f
         .client
         .chat(&grounding_msgs(&f.prompts, &[0, 2], [40, 40, 200]), &b)
+        .await
+        .unwrap();
+    assert!(parse_no_image(&r.text).is_some(), "{}", r.text);
+    assert!(parse_grounding(&r.text).is_err(), "{}", r.text);
+    // Offered with frame 1 among them, it is picked.
+    let r = f
+        .client
+        .chat(&grounding_msgs(&f.prompts, &[0, 1, 2], [40, 40, 200]), &b)
         .await
         .unwrap();
     assert_eq!(parse_grounding(&r.text).unwrap().target_image_id, 1);

@@ -1,7 +1,7 @@
 //! Tolerant JSON extraction and typed reply parsing.
 
 use grounder::vlm::json::{
-    extract_json, lenient_id, parse_grounding, parse_instance, parse_no_object,
+    extract_json, lenient_id, parse_grounding, parse_instance, parse_no_image, parse_no_object,
     parse_query_analysis, JsonError,
 };
 use serde_json::json;
@@ -140,5 +140,30 @@ fn a_marks_reply_may_say_no_region_is_the_target() {
         "no JSON here",
     ] {
         assert_eq!(parse_no_object(text), None, "{text}");
+    }
+}
+
+#[test]
+fn a_grounding_reply_may_say_no_offered_frame_shows_the_target() {
+    for text in [
+        r#"{"reasoning": "no lamp in these", "target_image_id": null, "reference_image_ids": []}"#,
+        r#"```json
+{"reasoning": "no lamp in these", "target_image_id": "none"}
+```"#,
+    ] {
+        assert_eq!(
+            parse_no_image(text).as_deref(),
+            Some("no lamp in these"),
+            "{text}"
+        );
+        assert!(parse_grounding(text).is_err(), "{text}");
+    }
+    for text in [
+        r#"{"target_image_id": "00012"}"#,
+        r#"{"target_image_id": 7}"#,
+        r#"{"object_id": null}"#,
+        "no JSON here",
+    ] {
+        assert_eq!(parse_no_image(text), None, "{text}");
     }
 }
