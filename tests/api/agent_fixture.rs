@@ -198,12 +198,7 @@ impl Fixture {
     }
 
     pub async fn submit(&self, query: &str) -> String {
-        let r = self.app.create_job(&self.scene_id, query).await;
-        assert_eq!(r.status().as_u16(), 202);
-        r.json::<Value>().await.unwrap()["id"]
-            .as_str()
-            .unwrap()
-            .to_string()
+        self.app.submit_job(&self.scene_id, query).await
     }
 }
 

@@ -283,28 +283,8 @@ async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
     let slow = [("GROUNDER_DETECTOR", "oracle:delay_ms=400")];
     let c = reqwest::Client::new();
     let mut s = start(&data, &slow);
-    let r = c
-        .post(format!("{}/v1/scenes", s.base))
-        .header("content-type", "application/x-tar")
-        .body(scene_with_masks(8))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let job: Value = c
-        .post(format!("{}/v1/jobs", s.base))
-        .json(&serde_json::json!({"scene_id": id, "query": "the bed"}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let jid = job["id"].as_str().unwrap().to_string();
+    let id = upload_scene_to(&c, &s.base, scene_with_masks(8)).await;
+    let jid = submit_job(&c, &s.base, &id, "the bed").await;
     for attempt in 1..=3 {
         if attempt > 1 {
             s = start(&data, &slow);

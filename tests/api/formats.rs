@@ -79,12 +79,7 @@ async fn wait_ready(app: &TestApp, id: &str) -> Value {
 }
 
 async fn ground(app: &TestApp, id: &str, query: &str) -> [f64; 6] {
-    let r = app.create_job(id, query).await;
-    assert_eq!(r.status().as_u16(), 202);
-    let job = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let job = app.submit_job(id, query).await;
     let j = app.wait_job(&job, Duration::from_secs(120)).await;
     assert_eq!(j["status"], "succeeded", "{j}");
     let b = &j["result"]["box"];

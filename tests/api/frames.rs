@@ -55,12 +55,7 @@ async fn remove(app: &TestApp, id: &str, name: &str) -> (u16, Value) {
 }
 
 async fn start_job(app: &TestApp, id: &str) -> String {
-    let r = app.create_job(id, "the chair").await;
-    assert_eq!(r.status().as_u16(), 202);
-    let job = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let job = app.submit_job(id, "the chair").await;
     let t = std::time::Instant::now();
     loop {
         let (_, j) = app.get_json(&format!("/v1/jobs/{job}")).await;

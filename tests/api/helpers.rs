@@ -85,6 +85,17 @@ impl TestApp {
             .expect("upload")
     }
 
+    /// Upload the tiny scene of `frames` frames (a tar, no top folder), assert 201 and
+    /// return the scene id.
+    pub async fn upload_tiny_scene(&self, frames: usize) -> String {
+        upload_tiny_scene_to(&self.client, &self.url(""), frames).await
+    }
+
+    /// Submit one job for `query` on `scene_id`, assert 202 and return the job id.
+    pub async fn submit_job(&self, scene_id: &str, query: &str) -> String {
+        submit_job(&self.client, &self.url(""), scene_id, query).await
+    }
+
     pub async fn get_json(&self, path: &str) -> (u16, serde_json::Value) {
         let r = self.client.get(self.url(path)).send().await.expect("get");
         let s = r.status().as_u16();
@@ -164,6 +175,47 @@ pub fn tiny_scene_files(frames: usize) -> Vec<(String, Vec<u8>)> {
         b"1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 0 1\n".to_vec(),
     ));
     files
+}
+
+/// POST the tar archive `tar` to `{base}/v1/scenes` with `client` (which may carry a key),
+/// assert 201 and return the scene id.
+pub async fn upload_scene_to(client: &reqwest::Client, base: &str, tar: Vec<u8>) -> String {
+    let r = client
+        .post(format!("{base}/v1/scenes"))
+        .header("Content-Type", "application/x-tar")
+        .body(tar)
+        .send()
+        .await
+        .expect("upload");
+    let status = r.status().as_u16();
+    let body: serde_json::Value = r.json().await.unwrap_or(serde_json::Value::Null);
+    assert_eq!(status, 201, "upload to {base}: {body}");
+    body["id"].as_str().expect("a scene id").to_string()
+}
+
+/// [`upload_scene_to`] with the tiny scene of `frames` frames (a tar, no top folder).
+pub async fn upload_tiny_scene_to(client: &reqwest::Client, base: &str, frames: usize) -> String {
+    upload_scene_to(client, base, tar_of(&tiny_scene_files(frames), None)).await
+}
+
+/// POST one job `{scene_id, query}` to `{base}/v1/jobs` with `client`, assert 202 and
+/// return the job id.
+pub async fn submit_job(
+    client: &reqwest::Client,
+    base: &str,
+    scene_id: &str,
+    query: &str,
+) -> String {
+    let r = client
+        .post(format!("{base}/v1/jobs"))
+        .json(&serde_json::json!({"scene_id": scene_id, "query": query}))
+        .send()
+        .await
+        .expect("job");
+    let status = r.status().as_u16();
+    let body: serde_json::Value = r.json().await.unwrap_or(serde_json::Value::Null);
+    assert_eq!(status, 202, "job {query:?} at {base}: {body}");
+    body["id"].as_str().expect("a job id").to_string()
 }
 
 /// Pack files as a tar under an optional top-level folder.

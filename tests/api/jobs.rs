@@ -2,21 +2,10 @@ use crate::helpers::*;
 use serde_json::Value;
 use std::time::Duration;
 
-async fn scene(app: &TestApp) -> String {
-    let r = app
-        .upload(tar_of(&tiny_scene_files(4), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
 #[tokio::test]
 async fn a_job_runs_to_a_box_with_a_trace() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let r = app.create_job(&sid, "the chair by the window").await;
     assert_eq!(r.status().as_u16(), 202);
     let loc = r
@@ -62,7 +51,7 @@ async fn failures_cancels_and_bad_requests() {
     // Long enough that a loaded machine still catches the job running before it ends.
     cfg.pipeline = "test:delay_ms=1500".into();
     let app = TestApp::spawn_with(cfg).await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     // A failing pipeline gives a named reason.
     let j: Value = app
         .create_job(&sid, "[fail] the lamp")
@@ -158,8 +147,8 @@ async fn failures_cancels_and_bad_requests() {
 #[tokio::test]
 async fn listing_pages_with_a_cursor_and_filters() {
     let app = TestApp::spawn().await;
-    let a = scene(&app).await;
-    let b = scene(&app).await;
+    let a = app.upload_tiny_scene(4).await;
+    let b = app.upload_tiny_scene(4).await;
     let mut ids = Vec::new();
     for i in 0..5 {
         let sid = if i % 2 == 0 { &a } else { &b };
@@ -203,7 +192,7 @@ async fn listing_pages_with_a_cursor_and_filters() {
 #[tokio::test]
 async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let store = crate::helpers::open_store(&app.data_dir).await;
     store
         .set_scene_status(&sid, "indexing", None)
@@ -231,7 +220,7 @@ async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
         (Some("canceled"), Some("scene_deleted"))
     );
 
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
     app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
         .await;
@@ -273,9 +262,8 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     // Long enough to be caught running, short enough to finish if the cancel is lost.
     cfg.pipeline = "test:delay_ms=3000".into();
     let app = TestApp::spawn_with(cfg).await;
-    let sid = scene(&app).await;
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    let id = j["id"].as_str().unwrap().to_string();
+    let sid = app.upload_tiny_scene(4).await;
+    let id = app.submit_job(&sid, "the sofa").await;
     let mut running = false;
     for _ in 0..400 {
         let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
@@ -334,7 +322,7 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
 #[tokio::test]
 async fn a_poll_returns_the_trace_in_step_order() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
     assert_eq!(
         j["trace"],
@@ -365,7 +353,7 @@ async fn a_poll_returns_the_trace_in_step_order() {
 #[tokio::test]
 async fn a_new_job_is_reported_queued_even_when_claimed_at_once() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let store = crate::helpers::open_store(&app.data_dir).await;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let claimer = {

@@ -4,16 +4,6 @@ use crate::helpers::*;
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
 
-async fn scene(app: &TestApp) -> String {
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
 async fn cond_get(app: &TestApp, path: &str, etag: &str) -> reqwest::Response {
     app.client
         .get(app.url(path))
@@ -26,7 +16,7 @@ async fn cond_get(app: &TestApp, path: &str, etag: &str) -> reqwest::Response {
 #[tokio::test]
 async fn etags_answer_304_until_the_job_or_scene_changes() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(3).await;
     let r = app
         .client
         .get(app.url(&format!("/v1/scenes/{sid}")))
@@ -68,7 +58,7 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.pipeline = "test:delay_ms=1500".into();
     let app = TestApp::spawn_with(cfg).await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(3).await;
     let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
     let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
     let started = Instant::now();
@@ -128,7 +118,7 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
 #[tokio::test]
 async fn a_batch_of_queries_makes_one_job_each_in_order() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(3).await;
     let queries = ["the lamp", "the sofa", "the chair", "[fail] the bed"];
     let r = app
         .client

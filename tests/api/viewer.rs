@@ -7,12 +7,7 @@ use std::time::Duration;
 #[tokio::test]
 async fn pages_assets_and_exports_are_served_or_refused_clearly() {
     let app = TestApp::spawn().await;
-    let up = app
-        .upload(tar_of(&tiny_scene_files(4), None), "application/x-tar")
-        .await;
-    assert_eq!(up.status(), 201);
-    let scene: serde_json::Value = up.json().await.unwrap();
-    let sid = scene["id"].as_str().unwrap().to_string();
+    let sid = app.upload_tiny_scene(4).await;
 
     // Scene page: HTML naming the scene, with the import map of the vendored three.js.
     let r = app

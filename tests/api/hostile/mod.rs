@@ -146,18 +146,10 @@ async fn a_panicking_job_fails_alone_and_the_worker_goes_on() {
     cfg.workers = 1;
     cfg.pipeline = "test:delay_ms=10".into();
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let scene: serde_json::Value = r.json().await.expect("json");
-    let scene_id = scene["id"].as_str().expect("id").to_string();
+    let scene_id = app.upload_tiny_scene(3).await;
     let mut ids = Vec::new();
     for q in ["the chair [panic]", "the table [panic]", "the lamp"] {
-        let r = app.create_job(&scene_id, q).await;
-        assert_eq!(r.status().as_u16(), 202);
-        let j: serde_json::Value = r.json().await.expect("json");
-        ids.push(j["id"].as_str().expect("id").to_string());
+        ids.push(app.submit_job(&scene_id, q).await);
     }
     let mut states = Vec::new();
     for id in &ids {
@@ -193,11 +185,7 @@ async fn jobs_queued_on_a_scene_that_fails_indexing_fail_with_it() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = test_config(dir.path().to_path_buf());
     let app = TestApp::spawn_with(cfg.clone()).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let scene: serde_json::Value = r.json().await.expect("json");
-    let scene_id = scene["id"].as_str().expect("id").to_string();
+    let scene_id = app.upload_tiny_scene(3).await;
     app.stop().await;
 
     let db = dir.path().join("grounder.db");
