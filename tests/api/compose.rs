@@ -13,7 +13,7 @@ use serde_norway::Value;
 use std::collections::{BTreeMap, HashSet};
 use std::time::{Duration, Instant};
 
-use crate::helpers::{pg, start_server, submit_job, upload_tiny_scene_to, Server};
+use crate::helpers::{get_json_at, pg, start_server, submit_job, upload_tiny_scene_to, Server};
 
 const COMPOSE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/deploy/compose.yaml");
 const DOCKERFILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/Dockerfile");
@@ -333,14 +333,7 @@ async fn the_compose_replicas_run_a_job_on_postgres_and_a_bucket() {
     let id = submit_job(&http, &api.base, &sid, "the chair").await;
     let t = Instant::now();
     let job = loop {
-        let j: Json = http
-            .get(format!("{}/v1/jobs/{id}", api.base))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        let j: Json = get_json_at(&http, &format!("{}/v1/jobs/{id}", api.base)).await;
         if !matches!(j["status"].as_str(), Some("queued" | "running")) {
             break j;
         }

@@ -98,14 +98,7 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
     while !left.is_empty() {
         let mut still = Vec::new();
         for id in &left {
-            let j: Value = c
-                .get(format!("{base}/v1/jobs/{id}"))
-                .send()
-                .await
-                .unwrap()
-                .json()
-                .await
-                .unwrap();
+            let j: Value = get_json_at(&c, &format!("{base}/v1/jobs/{id}")).await;
             match j["status"].as_str() {
                 Some("succeeded") => {}
                 Some("queued" | "running") => still.push(id.clone()),

@@ -218,6 +218,41 @@ pub async fn submit_job(
     body["id"].as_str().expect("a job id").to_string()
 }
 
+/// GET `url` with `client` and parse the answer as JSON (of any status).
+pub async fn get_json_at(client: &reqwest::Client, url: &str) -> serde_json::Value {
+    let r = client.get(url).send().await.expect("get");
+    r.json().await.expect("a JSON answer")
+}
+
+/// An answer's status, content type ("" when none) and JSON body (Null when not JSON), as
+/// a problem+json check needs them.
+pub async fn problem(r: reqwest::Response) -> (u16, String, serde_json::Value) {
+    let s = r.status().as_u16();
+    let ct = r
+        .headers()
+        .get("content-type")
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_string();
+    (s, ct, r.json().await.unwrap_or(serde_json::Value::Null))
+}
+
+/// Every file below `dir` (none when it does not exist).
+pub fn files_under(dir: &std::path::Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                out.extend(files_under(&p));
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
 /// Pack files as a tar under an optional top-level folder.
 pub fn tar_of(files: &[(String, Vec<u8>)], top: Option<&str>) -> Vec<u8> {
     let mut b = tar::Builder::new(Vec::new());

@@ -14,14 +14,7 @@ fn start(data_dir: &std::path::Path, delay_ms: u64) -> Server {
 async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
     let t = Instant::now();
     loop {
-        let j: Value = c
-            .get(url)
-            .send()
-            .await
-            .expect("get")
-            .json()
-            .await
-            .expect("json");
+        let j: Value = get_json_at(c, url).await;
         if j["status"] == want || t.elapsed() > Duration::from_secs(20) {
             return j;
         }

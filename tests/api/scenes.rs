@@ -252,14 +252,7 @@ async fn bad_uploads_are_refused_cleanly() {
     ];
     for (what, body, status, code) in cases {
         let r = app.upload(body, "application/x-tar").await;
-        let got = r.status().as_u16();
-        let ct = r
-            .headers()
-            .get("content-type")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_string();
-        let p: serde_json::Value = r.json().await.unwrap_or_default();
+        let (got, ct, p) = problem(r).await;
         assert_eq!(
             (got, p["code"].as_str().unwrap_or("")),
             (status, code),
@@ -279,28 +272,13 @@ async fn bad_uploads_are_refused_cleanly() {
         0,
         "no partial scene"
     );
-    let leftovers: Vec<_> = walk(&app.data_dir)
+    let leftovers: Vec<_> = files_under(&app.data_dir)
         .into_iter()
         .filter(|p| !p.to_string_lossy().contains("grounder.db"))
         .collect();
     assert!(leftovers.is_empty(), "no stray files: {leftovers:?}");
     assert!(!dir.path().parent().unwrap().join("evil.txt").exists());
     app.stop().await;
-}
-
-fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut out = Vec::new();
-    if let Ok(rd) = std::fs::read_dir(dir) {
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                out.extend(walk(&p));
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out
 }
 
 /// Indexing with the oracle detector: progress, re-indexing on request, and the refusal

@@ -3,20 +3,9 @@
 
 use super::{assert_peak_growth_under, vm_hwm_kb};
 use crate::frames::more_frames;
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
+use crate::helpers::{problem, tar_of, test_config, tiny_scene_files, TestApp};
 use serde_json::Value;
 use std::time::{Duration, Instant};
-
-async fn problem(r: reqwest::Response) -> (u16, String, Value) {
-    let s = r.status().as_u16();
-    let ct = r
-        .headers()
-        .get("content-type")
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("")
-        .to_string();
-    (s, ct, r.json().await.unwrap_or(Value::Null))
-}
 
 #[tokio::test]
 async fn a_scene_over_the_frames_x_pixels_cap_is_refused_at_upload_and_at_append() {

@@ -9,7 +9,7 @@ mod headers;
 mod limits;
 mod watchdog;
 
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
+use crate::helpers::{problem, tar_of, test_config, tiny_scene_files, TestApp};
 
 /// A PNG chunk: length, type, data, CRC over type and data.
 fn png_chunk(kind: &[u8; 4], data: &[u8]) -> Vec<u8> {
@@ -109,14 +109,7 @@ async fn image_dimension_bombs_are_refused_and_the_server_lives() {
         let body = tar_of(&files, None);
         assert!(body.len() < 100_000, "{what}: the input itself is small");
         let r = app.upload(body, "application/x-tar").await;
-        let status = r.status().as_u16();
-        let ct = r
-            .headers()
-            .get("content-type")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_string();
-        let p: serde_json::Value = r.json().await.unwrap_or_default();
+        let (status, ct, p) = problem(r).await;
         assert_eq!(
             (status, p["code"].as_str().unwrap_or("")),
             (413, "image_too_large"),
