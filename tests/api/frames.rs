@@ -44,12 +44,7 @@ async fn append(app: &TestApp, id: &str, body: Vec<u8>) -> (u16, Value) {
 }
 
 async fn remove(app: &TestApp, id: &str, name: &str) -> (u16, Value) {
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{id}/frames/{name}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{id}/frames/{name}")).await;
     let s = r.status().as_u16();
     (s, r.json().await.unwrap_or(Value::Null))
 }

@@ -75,6 +75,25 @@ impl TestApp {
         format!("http://{}{}", self.addr, path)
     }
 
+    /// GET `path` (as any answer: the caller checks the status).
+    pub async fn get(&self, path: &str) -> reqwest::Response {
+        self.client.get(self.url(path)).send().await.expect("get")
+    }
+
+    /// POST `path` with no body.
+    pub async fn post_empty(&self, path: &str) -> reqwest::Response {
+        self.client.post(self.url(path)).send().await.expect("post")
+    }
+
+    /// DELETE `path`.
+    pub async fn delete(&self, path: &str) -> reqwest::Response {
+        self.client
+            .delete(self.url(path))
+            .send()
+            .await
+            .expect("delete")
+    }
+
     pub async fn upload(&self, body: Vec<u8>, content_type: &str) -> reqwest::Response {
         self.client
             .post(self.url("/v1/scenes"))

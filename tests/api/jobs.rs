@@ -82,12 +82,7 @@ async fn failures_cancels_and_bad_requests() {
         }
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert_eq!(r.status().as_u16(), 200);
     let s = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(
@@ -97,12 +92,7 @@ async fn failures_cancels_and_bad_requests() {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
     assert_eq!(s["status"], "canceled", "{s}");
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert_eq!(
         r.status().as_u16(),
         409,
@@ -203,12 +193,7 @@ async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
     tokio::time::sleep(Duration::from_millis(700)).await;
     let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
     assert_eq!(s["status"], "queued", "waits for the scene");
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(
         r.status().as_u16(),
         204,
@@ -275,12 +260,7 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     }
     assert!(running, "the job never started");
 
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(r.status().as_u16(), 409);
     assert_eq!(r.headers()["content-type"], "application/problem+json");
     let p: Value = r.json().await.unwrap();
@@ -299,21 +279,11 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     );
 
     // Once the job is canceled the scene can go.
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert_eq!(r.status().as_u16(), 200);
     let done = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(done["status"], "canceled", "{done}");
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(r.status().as_u16(), 204);
     assert_eq!(app.get_json(&format!("/v1/scenes/{sid}")).await.0, 404);
     app.stop().await;

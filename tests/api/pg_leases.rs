@@ -73,12 +73,7 @@ async fn leases_move_jobs_between_replicas_and_give_up_after_three_attempts() {
 
     // A cancel through the API replica reaches b's waiters by notification.
     let mut changes = b.events.subscribe(&id);
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert!(r.status().is_success(), "{}", r.status());
     tokio::time::timeout(Duration::from_secs(5), changes.changed())
         .await

@@ -17,12 +17,7 @@ async fn cond_get(app: &TestApp, path: &str, etag: &str) -> reqwest::Response {
 async fn etags_answer_304_until_the_job_or_scene_changes() {
     let app = TestApp::spawn().await;
     let sid = app.upload_tiny_scene(3).await;
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.get(&format!("/v1/scenes/{sid}")).await;
     let tag = r.headers()["etag"].to_str().unwrap().to_string();
     let r = cond_get(&app, &format!("/v1/scenes/{sid}"), &tag).await;
     assert_eq!(r.status().as_u16(), 304);

@@ -77,12 +77,7 @@ async fn uploads_in_every_archive_kind_and_layout() {
     let id = j["id"].as_str().unwrap();
     let (s, one) = app.get_json(&format!("/v1/scenes/{id}")).await;
     assert_eq!((s, one["id"].as_str()), (200, Some(id)));
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{id}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{id}")).await;
     assert_eq!(r.status().as_u16(), 204);
     let (s, p) = app.get_json(&format!("/v1/scenes/{id}")).await;
     assert_eq!((s, p["code"].as_str()), (404, Some("scene_not_found")));
@@ -332,12 +327,7 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
     let dets = store.detections(&id, "oracle").await.unwrap();
     let n: usize = dets.values().map(Vec::len).sum();
     assert!(n > 0, "the oracle finds the synthetic furniture");
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/scenes/{id}/index")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/scenes/{id}/index")).await;
     assert_eq!(r.status().as_u16(), 202);
     let s = wait_ready().await;
     assert_eq!(s["status"], "ready");
@@ -352,12 +342,7 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
         again, n,
         "re-indexing replaces, never duplicates, detections"
     );
-    let r = app
-        .client
-        .post(app.url("/v1/scenes/nope/index"))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty("/v1/scenes/nope/index").await;
     assert_eq!(r.status().as_u16(), 404);
     app.stop().await;
 }

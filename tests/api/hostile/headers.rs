@@ -12,12 +12,7 @@ async fn artifacts_are_served_with_nosniff() {
     let id = app.submit_job(&scene, "<html>the chair").await;
     let j = app.wait_job(&id, std::time::Duration::from_secs(10)).await;
     assert_eq!(j["status"], "succeeded", "{j}");
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/jobs/{id}/artifacts/test.txt")))
-        .send()
-        .await
-        .expect("get");
+    let r = app.get(&format!("/v1/jobs/{id}/artifacts/test.txt")).await;
     assert_eq!(r.status().as_u16(), 200);
     assert_eq!(
         r.headers()

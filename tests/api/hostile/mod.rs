@@ -59,12 +59,7 @@ pub(super) fn assert_peak_growth_under(before: Option<u64>, kb: u64) {
 
 /// Fail unless the server still answers `/healthz` with 200 (after `what`).
 pub(super) async fn assert_still_answers(app: &TestApp, what: &str) {
-    let health = app
-        .client
-        .get(app.url("/healthz"))
-        .send()
-        .await
-        .expect("the server still answers");
+    let health = app.get("/healthz").await;
     assert_eq!(health.status().as_u16(), 200, "{what}");
 }
 
