@@ -53,28 +53,15 @@ async fn failures_cancels_and_bad_requests() {
     let app = TestApp::spawn_with(cfg).await;
     let sid = app.upload_tiny_scene(4).await;
     // A failing pipeline gives a named reason.
-    let j: Value = app
-        .create_job(&sid, "[fail] the lamp")
-        .await
-        .json()
-        .await
-        .unwrap();
-    let done = app
-        .wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
-        .await;
+    let id = app.submit_job(&sid, "[fail] the lamp").await;
+    let done = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(
         (done["status"].as_str(), done["error"]["code"].as_str()),
         (Some("failed"), Some("no_target_found"))
     );
 
     // Cancel while running.
-    let j: Value = app
-        .create_job(&sid, "the table")
-        .await
-        .json()
-        .await
-        .unwrap();
-    let id = j["id"].as_str().unwrap().to_string();
+    let id = app.submit_job(&sid, "the table").await;
     for _ in 0..200 {
         let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
         if s["status"] == "running" {
@@ -142,13 +129,7 @@ async fn listing_pages_with_a_cursor_and_filters() {
     let mut ids = Vec::new();
     for i in 0..5 {
         let sid = if i % 2 == 0 { &a } else { &b };
-        let j: Value = app
-            .create_job(sid, &format!("object {i}"))
-            .await
-            .json()
-            .await
-            .unwrap();
-        ids.push(j["id"].as_str().unwrap().to_string());
+        ids.push(app.submit_job(sid, &format!("object {i}")).await);
     }
     let mut seen = Vec::new();
     let mut cursor = String::new();
@@ -188,8 +169,7 @@ async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
         .set_scene_status(&sid, "indexing", None)
         .await
         .unwrap();
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    let id = j["id"].as_str().unwrap();
+    let id = app.submit_job(&sid, "the sofa").await;
     tokio::time::sleep(Duration::from_millis(700)).await;
     let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
     assert_eq!(s["status"], "queued", "waits for the scene");
@@ -206,9 +186,8 @@ async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
     );
 
     let sid = app.upload_tiny_scene(4).await;
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
-        .await;
+    let id = app.submit_job(&sid, "the sofa").await;
+    app.wait_job(&id, Duration::from_secs(10)).await;
     let text = app
         .client
         .get(app.url("/metrics"))

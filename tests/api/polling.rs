@@ -26,14 +26,12 @@ async fn etags_answer_304_until_the_job_or_scene_changes() {
     let r = cond_get(&app, &format!("/v1/scenes/{sid}"), "\"stale\"").await;
     assert_eq!(r.status().as_u16(), 200);
 
-    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
-    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let id = app.submit_job(&sid, "the lamp").await;
+    let path = format!("/v1/jobs/{id}");
     let r = app.client.get(app.url(&path)).send().await.unwrap();
     let tag = r.headers()["etag"].to_str().unwrap().to_string();
     let first: Value = r.json().await.unwrap();
-    let done = app
-        .wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
-        .await;
+    let done = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(done["status"], "succeeded");
     // Changed since: 200 with a new tag; then 304 with that tag.
     let r = cond_get(&app, &path, &tag).await;
@@ -54,8 +52,8 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
     cfg.pipeline = "test:delay_ms=1500".into();
     let app = TestApp::spawn_with(cfg).await;
     let sid = app.upload_tiny_scene(3).await;
-    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
-    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let id = app.submit_job(&sid, "the lamp").await;
+    let path = format!("/v1/jobs/{id}");
     let started = Instant::now();
     let r = app
         .client
@@ -83,8 +81,8 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
     assert!(took >= Duration::from_millis(1000), "it did wait: {took:?}");
 
     // A running job past N seconds comes back with its current state.
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let id = app.submit_job(&sid, "the sofa").await;
+    let path = format!("/v1/jobs/{id}");
     let started = Instant::now();
     let r = app
         .client
