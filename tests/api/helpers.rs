@@ -206,10 +206,7 @@ pub async fn upload_scene_to(client: &reqwest::Client, base: &str, tar: Vec<u8>)
         .send()
         .await
         .expect("upload");
-    let status = r.status().as_u16();
-    let body: serde_json::Value = r.json().await.unwrap_or(serde_json::Value::Null);
-    assert_eq!(status, 201, "upload to {base}: {body}");
-    body["id"].as_str().expect("a scene id").to_string()
+    id_of(r, 201, &format!("upload to {base}")).await
 }
 
 /// [`upload_scene_to`] with the tiny scene of `frames` frames (a tar, no top folder).
@@ -231,10 +228,16 @@ pub async fn submit_job(
         .send()
         .await
         .expect("job");
+    id_of(r, 202, &format!("job {query:?} at {base}")).await
+}
+
+/// Assert that `r` has the status `want` (else fail with `what` and the body) and return
+/// the `id` of its JSON body.
+async fn id_of(r: reqwest::Response, want: u16, what: &str) -> String {
     let status = r.status().as_u16();
     let body: serde_json::Value = r.json().await.unwrap_or(serde_json::Value::Null);
-    assert_eq!(status, 202, "job {query:?} at {base}: {body}");
-    body["id"].as_str().expect("a job id").to_string()
+    assert_eq!(status, want, "{what}: {body}");
+    body["id"].as_str().expect("an id").to_string()
 }
 
 /// GET `url` with `client` and parse the answer as JSON (of any status).
