@@ -1,25 +1,16 @@
 //! Point-cloud operations: voxel downsampling, Open3D-identical statistical outlier
 //! removal and the chamfer distance of the ensemble filter. Nearest neighbours come from
-//! a kiddo k-d tree.
+//! the k-d tree searches of `knn`.
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 use std::num::NonZeroUsize;
 
-use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-type Tree = ImmutableKdTree<f64, u32, 3, 32>;
-
-/// Nearest-neighbour queries per parallel task: small clouds stay on one thread.
-const PAR_CHUNK: usize = 2048;
-
-fn build_tree(points: &[Point3<f64>]) -> Tree {
-    let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
-    Tree::new_from_slice(&coords)
-}
+use super::knn::{build_tree, mean_distance, neighbour_lists, Neighbours, Tree, PAR_CHUNK};
 
 /// Multiply-xorshift hasher for voxel keys (SipHash dominates the cost otherwise).
 #[derive(Default)]
@@ -198,11 +189,8 @@ pub fn statistical_outlier_indices(
     outliers_and_neighbours(points, nb_neighbors, std_ratio).0
 }
 
-/// A point's nearest points of a cloud: (squared distance, index), nearest first.
-pub(crate) type Neighbours = Vec<(f64, u32)>;
-
 /// [`statistical_outlier_indices`] and, when it computed them, every point's
-/// `nb_neighbors` nearest points (for [`neighbour_mean_distances_of_subset`]).
+/// `nb_neighbors` nearest points (for [`super::knn::neighbour_mean_distances_of_subset`]).
 pub(crate) fn outliers_and_neighbours(
     points: &[Point3<f64>],
     nb_neighbors: usize,
@@ -233,90 +221,6 @@ pub(crate) fn outliers_and_neighbours(
         .filter(|&i| avg[i] > 0.0 && avg[i] < threshold)
         .collect();
     (kept, Some(nn))
-}
-
-/// The `k` nearest points of `tree` to each of `points`, nearest first. kiddo keeps
-/// them in a binary heap here (its sorted vector, used when asked for sorted results, cost
-/// more than the search itself), sorted once at the end.
-fn neighbour_lists(points: &[Point3<f64>], tree: &Tree, k: NonZeroUsize) -> Vec<Neighbours> {
-    points
-        .par_iter()
-        .with_min_len(PAR_CHUNK)
-        .map(|p| {
-            let mut nn: Neighbours = tree
-                .nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], f64::INFINITY, k, false)
-                .into_iter()
-                .map(|n| (n.distance, n.item))
-                .collect();
-            nn.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            nn
-        })
-        .collect()
-}
-
-/// Mean Euclidean distance of a neighbour list, summed nearest first (as the sorted
-/// search gave them, so the value is the same to the bit); -1 when empty.
-fn mean_distance(nn: &Neighbours) -> f64 {
-    if nn.is_empty() {
-        return -1.0;
-    }
-    nn.iter().map(|n| n.0.sqrt()).sum::<f64>() / nn.len() as f64
-}
-
-/// [`neighbour_mean_distances`] of the subset `kept` (indices into the cloud `nn` was
-/// computed on, with the same `nb_neighbors`): a point whose nearest points all stay keeps
-/// its value, since they are then its nearest points of the subset too; the others are
-/// searched again among the subset. Equal to `neighbour_mean_distances(subset)`.
-pub(crate) fn neighbour_mean_distances_of_subset(
-    points: &[Point3<f64>],
-    kept: &[usize],
-    nn: &[Neighbours],
-    nb_neighbors: usize,
-) -> Vec<f64> {
-    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
-        return vec![-1.0; kept.len()];
-    };
-    let mut stays = vec![false; points.len()];
-    for &i in kept {
-        stays[i] = true;
-    }
-    let reusable = |i: usize| nn[i].len() == k.get() && nn[i].iter().all(|n| stays[n.1 as usize]);
-    let mut out: Vec<f64> = kept
-        .iter()
-        .map(|&i| {
-            if reusable(i) {
-                mean_distance(&nn[i])
-            } else {
-                f64::NAN
-            }
-        })
-        .collect();
-    let redo: Vec<usize> = (0..kept.len()).filter(|&j| out[j].is_nan()).collect();
-    if !redo.is_empty() {
-        let subset: Vec<Point3<f64>> = kept.iter().map(|&i| points[i]).collect();
-        let queries: Vec<Point3<f64>> = redo.iter().map(|&j| subset[j]).collect();
-        let again = neighbour_lists(&queries, &build_tree(&subset), k);
-        for (j, n) in redo.into_iter().zip(&again) {
-            out[j] = mean_distance(n);
-        }
-    }
-    out
-}
-
-/// For each point, the mean Euclidean distance to its `nb_neighbors` nearest points of
-/// the cloud, the point itself included (Open3D's statistic); -1 when there are none.
-pub fn neighbour_mean_distances(points: &[Point3<f64>], nb_neighbors: usize) -> Vec<f64> {
-    let Some(k) = NonZeroUsize::new(nb_neighbors) else {
-        return vec![-1.0; points.len()];
-    };
-    if points.is_empty() {
-        return Vec::new();
-    }
-    // Queries are independent: split them over the cores (order and values unchanged).
-    neighbour_lists(points, &build_tree(points), k)
-        .iter()
-        .map(mean_distance)
-        .collect()
 }
 
 /// The points kept by [`statistical_outlier_indices`].
@@ -358,6 +262,7 @@ pub fn chamfer_distance(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::test_grid::noisy_planes;
     use super::*;
 
     #[test]
@@ -451,84 +356,6 @@ mod tests {
         );
     }
 
-    /// Noisy points on three touching planes plus strays, from a fixed-seed generator;
-    /// coordinates on a millimetre grid so that equal distances (ties) occur.
-    fn cloud(n: usize, seed: u64) -> Vec<Point3<f64>> {
-        let mut x = seed;
-        let mut r = move || {
-            x = x
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (x >> 33) as f64 / (1u64 << 31) as f64
-        };
-        (0..n)
-            .map(|i| {
-                let (a, b, c) = (r(), r(), 0.01 * r());
-                let p = match i % 4 {
-                    0 => [a, b, c],
-                    1 => [a, c, b],
-                    2 => [c, a, b],
-                    _ => [3.0 * a - 1.0, 3.0 * b - 1.0, 3.0 * r() - 1.0],
-                };
-                Point3::new(
-                    (p[0] * 1000.0).round() / 1000.0,
-                    (p[1] * 1000.0).round() / 1000.0,
-                    (p[2] * 1000.0).round() / 1000.0,
-                )
-            })
-            .collect()
-    }
-
-    /// The distances as kiddo's sorted search gives them (the code before the heap).
-    fn sorted_search_means(points: &[Point3<f64>], k: usize) -> Vec<f64> {
-        let tree = build_tree(points);
-        let k = NonZeroUsize::new(k).unwrap();
-        points
-            .iter()
-            .map(|p| {
-                let nn = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], k);
-                nn.iter().map(|n| n.distance.sqrt()).sum::<f64>() / nn.len() as f64
-            })
-            .collect()
-    }
-
-    #[test]
-    fn neighbour_means_equal_the_sorted_search_to_the_bit() {
-        for (n, k) in [(3000, 20), (500, 2), (7, 20)] {
-            let pts = cloud(n, n as u64);
-            let want = sorted_search_means(&pts, k);
-            let got = neighbour_mean_distances(&pts, k);
-            assert_eq!(
-                got.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
-                want.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
-                "n = {n}, k = {k}"
-            );
-        }
-    }
-
-    #[test]
-    fn subset_means_reuse_the_neighbours_and_equal_a_fresh_search() {
-        let pts = cloud(3000, 7);
-        let (kept, nn) = outliers_and_neighbours(&pts, 20, 1.0);
-        let nn = nn.expect("neighbours computed");
-        assert!(
-            kept.len() < pts.len() && kept.len() > pts.len() / 2,
-            "some points are outliers: {} of {}",
-            kept.len(),
-            pts.len()
-        );
-        let subset: Vec<Point3<f64>> = kept.iter().map(|&i| pts[i]).collect();
-        let want = sorted_search_means(&subset, 20);
-        let got = neighbour_mean_distances_of_subset(&pts, &kept, &nn, 20);
-        assert_eq!(
-            got.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
-            want.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
-        );
-        // The same indices as before the neighbour lists were kept.
-        let plain = statistical_outlier_indices(&pts, 20, 1.0);
-        assert_eq!(plain, kept);
-    }
-
     #[test]
     fn floor_without_libm_equals_floor() {
         let mut xs = vec![
@@ -572,7 +399,7 @@ mod tests {
                 )
             })
             .collect();
-        for pts in [raster, cloud(2000, 3)] {
+        for pts in [raster, noisy_planes(2000, 3)] {
             let mut order: Vec<(i64, i64, i64)> = Vec::new();
             let mut acc: HashMap<(i64, i64, i64), ([f64; 3], u32)> = HashMap::new();
             for p in &pts {

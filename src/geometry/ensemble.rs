@@ -6,9 +6,9 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    chamfer_distance, cluster_keep, neighbour_mean_distances, neighbour_mean_distances_of_subset,
-    outliers_and_neighbours, subsample_even, voxel_downsample, Neighbours,
+    chamfer_distance, cluster_keep, outliers_and_neighbours, subsample_even, voxel_downsample,
 };
+use super::knn::{neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours};
 use super::projection::{project_points, Projected, ProjectionError};
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask, RoomLayout};
 

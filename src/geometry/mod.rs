@@ -19,6 +19,7 @@ pub mod depth_fill;
 pub mod ensemble;
 pub mod export;
 pub mod fusion;
+pub mod knn;
 pub mod layout;
 pub mod mask;
 pub mod morph;
@@ -35,8 +36,7 @@ pub mod walls;
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
 pub use cloud::{
-    chamfer_distance, neighbour_mean_distances, remove_statistical_outliers,
-    statistical_outlier_indices, voxel_downsample,
+    chamfer_distance, remove_statistical_outliers, statistical_outlier_indices, voxel_downsample,
 };
 pub use consensus::{free_space_votes, mask_votes, ConsensusParams, MaskView};
 pub use depth_fill::{fill_depth, DepthFillParams, DepthFillStats};
@@ -44,6 +44,7 @@ pub use ensemble::{
     chamfer_decisions, find_views, find_views_with_room, fuse_clouds, fuse_views, mask_points,
     single_view_box, CandidateFrame, FusionResult, ViewCandidate, ViewDecision,
 };
+pub use knn::neighbour_mean_distances;
 pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};

@@ -13,6 +13,7 @@
 //! Library first: [`generate`] writes one scene and returns its ground truth;
 //! [`write_dataset`] writes FORMATS §2 annotations for a set of scenes.
 
+mod build;
 mod catalog;
 pub mod cli;
 mod noise;
@@ -234,17 +235,11 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
     params.validate()?;
     let world = room::build(params.seed);
     let poses = path::camera_path(&world, params.frames, params.seed);
-    let labels: Vec<(u32, &str)> = world
-        .objects
-        .iter()
-        .map(|o| (o.id, o.label.as_str()))
-        .collect();
     let head = SceneHead {
         scene_id: scene_id(params.seed),
         room_size: world.size,
         align: world.align,
         align_inv: world.align_inv,
-        labels: &labels,
         objects: world.output_objects(),
     };
     let renderer = render::Renderer::new(&world);
@@ -255,10 +250,8 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
         head,
         &poses,
         |i, pose, color_k, depth_k| {
-            let color = renderer.render_color(pose, color_k, params, i);
             (
-                color.rgb,
-                color.instance,
+                renderer.render_color(pose, color_k, params, i),
                 renderer.render_depth(pose, depth_k),
             )
         },
@@ -266,26 +259,25 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
 }
 
 /// What a scene family hands to [`write_scene`] about its world.
-pub(crate) struct SceneHead<'a> {
+pub(crate) struct SceneHead {
     pub scene_id: String,
     pub room_size: (f64, f64, f64),
     /// Aligned frame from the world frame, and back.
     pub align: Matrix4<f64>,
     pub align_inv: Matrix4<f64>,
-    /// Instance id and label of every object.
-    pub labels: &'a [(u32, &'a str)],
+    /// Every object; their instance ids and labels go to `instance/labels.json`.
     pub objects: Vec<SynthObject>,
 }
 
 /// Render and write a scene of any family: the frames of the camera path `poses` (aligned
 /// frame) in parallel through `render(i, pose, colour intrinsics, depth intrinsics)` ->
-/// (RGB bytes, instance ids, depth), with the sensor noise of `params`, then the static
+/// (colour and instance ids, depth), with the sensor noise of `params`, then the static
 /// files, the queries and (when `tar`) the archive. Output bytes depend only on `params`.
 pub(crate) fn write_scene<R>(
     params: &SynthParams,
     out_dir: &Path,
     tar: bool,
-    head: SceneHead<'_>,
+    head: SceneHead,
     poses: &[Matrix4<f64>],
     render: R,
 ) -> Result<SynthScene>
@@ -295,7 +287,7 @@ where
             &Matrix4<f64>,
             &Intrinsics,
             &Intrinsics,
-        ) -> (Vec<u8>, Vec<u16>, render::DepthFrame)
+        ) -> (render::ColorFrame, render::DepthFrame)
         + Sync,
 {
     let sid = head.scene_id;
@@ -315,26 +307,31 @@ where
 
     let writer = output::SceneWriter::create(&dir, params.layout)
         .with_context(|| format!("synth: cannot create scene directory {}", dir.display()))?;
-    writer.write_static(&head.align, head.labels, &color_k, &depth_k)?;
+    let labels: Vec<(u32, &str)> = head
+        .objects
+        .iter()
+        .map(|o| (o.id, o.label.as_str()))
+        .collect();
+    writer.write_static(&head.align, &labels, &color_k, &depth_k)?;
     frames
         .par_iter()
         .enumerate()
         .try_for_each(|(i, f)| -> Result<()> {
-            let (mut rgb, instance, mut depth) = render(i, &f.pose_aligned, &color_k, &depth_k);
+            let (mut color, mut depth) = render(i, &f.pose_aligned, &color_k, &depth_k);
             let mut pose_out = f.pose_aligned;
             if params.noise == Noise::Realistic {
                 noise::depth_noise(&mut depth, params.seed, i);
-                noise::color_noise(&mut rgb, params.seed, i);
+                noise::color_noise(&mut color.rgb, params.seed, i);
                 pose_out = noise::jitter_pose(&pose_out, params.seed, i);
             }
             let pose_world = head.align_inv * pose_out;
             writer.write_frame(
                 &f.name,
-                &rgb,
+                &color.rgb,
                 &color_k,
                 &depth.mm,
                 &depth_k,
-                &instance,
+                &color.instance,
                 f.pose_valid.then_some(&pose_world),
                 params.jpeg_quality,
             )

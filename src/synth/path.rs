@@ -1,9 +1,9 @@
 //! Camera path: a loop at head height that looks across the room from every side, so
 //! each object is seen from several views.
 
+use super::build::look_along;
 use super::room::World;
-use crate::geometry::camera::look_at_pose;
-use nalgebra::{Matrix4, Point3, Vector3};
+use nalgebra::{Matrix4, Point3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::TAU;
@@ -29,12 +29,7 @@ pub(crate) fn camera_path(world: &World, frames: usize, seed: u64) -> Vec<Matrix
             // Look across the room, swinging left and right of the centre.
             let yaw = phi + std::f64::consts::PI + sway * (2.0 * TAU * s + 0.7).sin();
             let pitch = -0.35 + 0.12 * (3.0 * TAU * s).cos();
-            let dir = Vector3::new(
-                yaw.cos() * pitch.cos(),
-                yaw.sin() * pitch.cos(),
-                pitch.sin(),
-            );
-            look_at_pose(eye, eye + dir, Vector3::z())
+            look_along(eye, yaw, pitch)
         })
         .collect()
 }

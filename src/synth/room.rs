@@ -1,10 +1,11 @@
 //! Room layout: furniture of realistic sizes, labels and colour names, placed without
 //! overlap in the aligned (output) frame. x in [0, W], y in [0, D], z up from the floor.
 
+use super::build::{alignment, overlaps, union};
 use super::catalog::{colours_for, palette, parts_of, size_of, Part};
 use super::SynthObject;
 use crate::geometry::Aabb;
-use nalgebra::{Matrix4, Rotation3, Vector3};
+use nalgebra::{Matrix4, Vector3};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -68,21 +69,6 @@ fn orient(parts: &[Part], w: f64, d: f64, facing: Facing, origin: [f64; 3]) -> V
             )
         })
         .collect()
-}
-
-fn union(parts: &[Aabb]) -> Aabb {
-    let mut b = parts[0];
-    for p in &parts[1..] {
-        for i in 0..3 {
-            b.min[i] = b.min[i].min(p.min[i]);
-            b.max[i] = b.max[i].max(p.max[i]);
-        }
-    }
-    b
-}
-
-fn overlaps(a: &Aabb, b: &Aabb, margin: f64) -> bool {
-    (0..3).all(|i| a.min[i] < b.max[i] + margin && b.min[i] < a.max[i] + margin)
 }
 
 struct Builder {
@@ -390,16 +376,7 @@ pub(crate) fn build(seed: u64) -> World {
         b.rng.gen_range(-3.0..3.0),
         b.rng.gen_range(-0.2..0.2),
     );
-    let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), theta);
-    let mut align = Matrix4::identity();
-    align.fixed_view_mut::<3, 3>(0, 0).copy_from(rot.matrix());
-    align.fixed_view_mut::<3, 1>(0, 3).copy_from(&t);
-    let mut align_inv = Matrix4::identity();
-    let rt = rot.matrix().transpose();
-    align_inv.fixed_view_mut::<3, 3>(0, 0).copy_from(&rt);
-    align_inv
-        .fixed_view_mut::<3, 1>(0, 3)
-        .copy_from(&(-(rt * t)));
+    let (align, align_inv) = alignment(theta, t);
     World {
         size: (w, d, h),
         objects: b.objects,

@@ -198,12 +198,7 @@ impl Fixture {
     }
 
     pub async fn submit(&self, query: &str) -> String {
-        let r = self.app.create_job(&self.scene_id, query).await;
-        assert_eq!(r.status().as_u16(), 202);
-        r.json::<Value>().await.unwrap()["id"]
-            .as_str()
-            .unwrap()
-            .to_string()
+        self.app.submit_job(&self.scene_id, query).await
     }
 }
 
@@ -222,8 +217,9 @@ pub fn pick_object(object_id: u32) -> Reply {
     Reply::ok(json!({"reasoning": "that one", "object_id": object_id}).to_string())
 }
 
-/// A class with a frame holding exactly one instance, and that frame.
-pub fn class_with_single(f: &Fixture) -> (String, usize) {
+/// The first class (by name) with a frame holding `n` instances (as
+/// [`Fixture::frames_with`] counts them), and that frame.
+fn class_with(f: &Fixture, n: usize) -> Option<(String, usize)> {
     let mut labels: Vec<&str> = f
         .dets
         .values()
@@ -232,36 +228,29 @@ pub fn class_with_single(f: &Fixture) -> (String, usize) {
         .collect();
     labels.sort();
     labels.dedup();
-    for l in labels {
-        if let Some(&i) = f.frames_with(l, 1).first() {
-            return (l.to_string(), i);
-        }
-    }
-    panic!(
-        "no class has a frame with exactly one instance: {:?}",
-        f.dets
-    );
+    labels
+        .into_iter()
+        .find_map(|l| f.frames_with(l, n).first().map(|&i| (l.to_string(), i)))
+}
+
+/// A class with a frame holding exactly one instance, and that frame.
+pub fn class_with_single(f: &Fixture) -> (String, usize) {
+    class_with(f, 1).unwrap_or_else(|| {
+        panic!(
+            "no class has a frame with exactly one instance: {:?}",
+            f.dets
+        )
+    })
 }
 
 /// A class with a frame holding two or more instances, and that frame.
 pub fn class_with_several(f: &Fixture) -> (String, usize) {
-    let mut labels: Vec<&str> = f
-        .dets
-        .values()
-        .flatten()
-        .map(|d| d.label.as_str())
-        .collect();
-    labels.sort();
-    labels.dedup();
-    for l in labels {
-        if let Some(&i) = f.frames_with(l, 2).first() {
-            return (l.to_string(), i);
-        }
-    }
-    panic!(
-        "no class has a frame with several instances (seed {SEED}): {:?}",
-        f.dets
-    );
+    class_with(f, 2).unwrap_or_else(|| {
+        panic!(
+            "no class has a frame with several instances (seed {SEED}): {:?}",
+            f.dets
+        )
+    })
 }
 
 /// Step names of a finished job's trace.

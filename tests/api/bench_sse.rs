@@ -31,13 +31,7 @@ async fn bench_sse_1000_subscribers_on_one_job() {
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.pipeline = "test:delay_ms=6000".into();
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = app.upload_tiny_scene(3).await;
     let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
     let url = app.url(&format!("/v1/jobs/{}/events", j["id"].as_str().unwrap()));
     let rss0 = rss_mb();

@@ -13,7 +13,7 @@ use serde_norway::Value;
 use std::collections::{BTreeMap, HashSet};
 use std::time::{Duration, Instant};
 
-use crate::helpers::{pg, start_server, tar_of, tiny_scene_files, Server};
+use crate::helpers::{get_json_at, pg, start_server, submit_job, upload_tiny_scene_to, Server};
 
 const COMPOSE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/deploy/compose.yaml");
 const DOCKERFILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/Dockerfile");
@@ -324,44 +324,16 @@ async fn the_compose_replicas_run_a_job_on_postgres_and_a_bucket() {
         // test pipeline stands in for the VLM), no detector, and a free port.
         procs.push((name, role, start_server(dirs[i].path(), &env)));
     }
-    let (name, _, api) = procs
+    let (_, _, api) = procs
         .iter()
         .find(|(_, r, _)| *r == Role::Api)
         .expect("an api replica");
     let http = reqwest::Client::new();
-    let r = http
-        .post(format!("{}/v1/scenes", api.base))
-        .header("Content-Type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201, "upload through {name}");
-    let sid = r.json::<Json>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let r = http
-        .post(format!("{}/v1/jobs", api.base))
-        .json(&serde_json::json!({"scene_id": sid, "query": "the chair"}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 202);
-    let id = r.json::<Json>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = upload_tiny_scene_to(&http, &api.base, 3).await;
+    let id = submit_job(&http, &api.base, &sid, "the chair").await;
     let t = Instant::now();
     let job = loop {
-        let j: Json = http
-            .get(format!("{}/v1/jobs/{id}", api.base))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        let j: Json = get_json_at(&http, &format!("{}/v1/jobs/{id}", api.base)).await;
         if !matches!(j["status"].as_str(), Some("queued" | "running")) {
             break j;
         }

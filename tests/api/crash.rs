@@ -117,24 +117,10 @@ async fn settle(base: &str) {
     loop {
         let mut busy = false;
         for st in ["queued", "running"] {
-            let j: Value = c
-                .get(format!("{base}/v1/jobs?status={st}&limit=1"))
-                .send()
-                .await
-                .expect("list jobs")
-                .json()
-                .await
-                .expect("json");
+            let j: Value = get_json_at(&c, &format!("{base}/v1/jobs?status={st}&limit=1")).await;
             busy |= j["jobs"].as_array().is_some_and(|a| !a.is_empty());
         }
-        let s: Value = c
-            .get(format!("{base}/v1/scenes"))
-            .send()
-            .await
-            .expect("list scenes")
-            .json()
-            .await
-            .expect("json");
+        let s: Value = get_json_at(&c, &format!("{base}/v1/scenes")).await;
         busy |= s["scenes"]
             .as_array()
             .is_some_and(|a| a.iter().any(|x| x["status"] == "indexing"));
@@ -283,28 +269,8 @@ async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
     let slow = [("GROUNDER_DETECTOR", "oracle:delay_ms=400")];
     let c = reqwest::Client::new();
     let mut s = start(&data, &slow);
-    let r = c
-        .post(format!("{}/v1/scenes", s.base))
-        .header("content-type", "application/x-tar")
-        .body(scene_with_masks(8))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let job: Value = c
-        .post(format!("{}/v1/jobs", s.base))
-        .json(&serde_json::json!({"scene_id": id, "query": "the bed"}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let jid = job["id"].as_str().unwrap().to_string();
+    let id = upload_scene_to(&c, &s.base, scene_with_masks(8)).await;
+    let jid = submit_job(&c, &s.base, &id, "the bed").await;
     for attempt in 1..=3 {
         if attempt > 1 {
             s = start(&data, &slow);
@@ -323,25 +289,11 @@ async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
         kill(&mut s.child, "-KILL");
     }
     let mut s = start(&data, &slow);
-    let j: Value = c
-        .get(format!("{}/v1/scenes/{id}", s.base))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let j: Value = get_json_at(&c, &format!("{}/v1/scenes/{id}", s.base)).await;
     assert_eq!(j["status"], "failed", "{j}");
     let why = j["error"].as_str().unwrap_or_default();
     assert!(why.contains("interrupted 3 times"), "{why}");
-    let job: Value = c
-        .get(format!("{}/v1/jobs/{jid}", s.base))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let job: Value = get_json_at(&c, &format!("{}/v1/jobs/{jid}", s.base)).await;
     assert_eq!(
         (job["status"].as_str(), job["error"]["code"].as_str()),
         (Some("failed"), Some("scene_failed")),

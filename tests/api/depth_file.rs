@@ -2,7 +2,6 @@
 //! file, written once from the stored blobs, instead of decoding every frame's blob.
 
 use crate::helpers::*;
-use serde_json::Value;
 use std::time::Duration;
 
 fn depth_files(scene_dir: &std::path::Path) -> Vec<String> {
@@ -16,22 +15,8 @@ fn depth_files(scene_dir: &std::path::Path) -> Vec<String> {
 #[tokio::test]
 async fn a_loaded_scene_maps_its_depth_file_instead_of_decoding_the_stored_blobs() {
     let app = TestApp::spawn().await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let scene = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let r = app.create_job(&scene, "the chair").await;
-    assert_eq!(r.status().as_u16(), 202);
-    let job: Value = r.json().await.unwrap();
-    let id = job["jobs"][0]["id"]
-        .as_str()
-        .or(job["id"].as_str())
-        .unwrap()
-        .to_string();
+    let scene = app.upload_tiny_scene(3).await;
+    let id = app.submit_job(&scene, "the chair").await;
     let done = app.wait_job(&id, Duration::from_secs(20)).await;
     assert_eq!(done["status"], "succeeded", "{done}");
     let data_dir = app.data_dir.clone();

@@ -23,15 +23,8 @@ async fn the_stream_follows_the_trace_in_order_and_resumes_with_last_event_id() 
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.pipeline = "test:delay_ms=400".into();
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
-    let id = j["id"].as_str().unwrap().to_string();
+    let sid = app.upload_tiny_scene(3).await;
+    let id = app.submit_job(&sid, "the lamp").await;
 
     // Subscribed while the job is queued or running: the live stream.
     let live = stream(&app, &id, None).await;

@@ -59,39 +59,11 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
     let mut replicas: Vec<Server> = dirs.iter().map(|d| start_server(d, &env)).collect();
     let c = reqwest::Client::new();
 
-    let r = c
-        .post(format!("{}/v1/scenes", replicas[0].base))
-        .header("Content-Type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = upload_tiny_scene_to(&c, &replicas[0].base, 3).await;
     let mut ids = Vec::new();
     for i in 0..JOBS {
         let base = &replicas[i % 3].base;
-        let r = c
-            .post(format!("{base}/v1/jobs"))
-            .json(&serde_json::json!({"scene_id": sid, "query": format!("object {i}")}))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(
-            r.status().as_u16(),
-            202,
-            "job {i} through replica {}",
-            i % 3
-        );
-        ids.push(
-            r.json::<Value>().await.unwrap()["id"]
-                .as_str()
-                .unwrap()
-                .to_string(),
-        );
+        ids.push(submit_job(&c, base, &sid, &format!("object {i}")).await);
     }
 
     // Kill replica 1 while it runs a job: once all three replicas hold leases.
@@ -126,14 +98,7 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
     while !left.is_empty() {
         let mut still = Vec::new();
         for id in &left {
-            let j: Value = c
-                .get(format!("{base}/v1/jobs/{id}"))
-                .send()
-                .await
-                .unwrap()
-                .json()
-                .await
-                .unwrap();
+            let j: Value = get_json_at(&c, &format!("{base}/v1/jobs/{id}")).await;
             match j["status"].as_str() {
                 Some("succeeded") => {}
                 Some("queued" | "running") => still.push(id.clone()),

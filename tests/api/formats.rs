@@ -4,11 +4,11 @@
 
 use crate::agent_fixture::vlm_config;
 use crate::format_writers::{self as w, Files};
-use crate::helpers::{tar_of, test_config, TestApp};
+use crate::helpers::{files_under, tar_of, test_config, TestApp};
 use grounder::eval::oracle_vlm::{router, OracleVlmArgs};
 use grounder::synth::{generate_with, write_dataset, SynthParams, SynthScene};
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::time::Duration;
 
@@ -28,21 +28,6 @@ fn scene() -> &'static (SynthScene, PathBuf) {
         write_dataset(std::slice::from_ref(&s), &dir.join("ds")).expect("dataset");
         (s, dir)
     })
-}
-
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    if let Ok(rd) = std::fs::read_dir(dir) {
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                out.extend(walk(&p));
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out
 }
 
 async fn post(app: &TestApp, query: &str, body: Vec<u8>, ct: &str) -> (u16, Value, String) {
@@ -79,12 +64,7 @@ async fn wait_ready(app: &TestApp, id: &str) -> Value {
 }
 
 async fn ground(app: &TestApp, id: &str, query: &str) -> [f64; 6] {
-    let r = app.create_job(id, query).await;
-    assert_eq!(r.status().as_u16(), 202);
-    let job = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let job = app.submit_job(id, query).await;
     let j = app.wait_job(&job, Duration::from_secs(120)).await;
     assert_eq!(j["status"], "succeeded", "{j}");
     let b = &j["result"]["box"];
@@ -232,7 +212,7 @@ async fn refused(app: &TestApp, query: &str, body: Vec<u8>, status: u16, needle:
         detail.contains(needle),
         "{query}: detail {detail:?} lacks {needle:?}"
     );
-    let left: Vec<_> = walk(&app.data_dir)
+    let left: Vec<_> = files_under(&app.data_dir)
         .into_iter()
         .filter(|p| !p.to_string_lossy().contains("grounder.db"))
         .collect();

@@ -44,23 +44,13 @@ async fn append(app: &TestApp, id: &str, body: Vec<u8>) -> (u16, Value) {
 }
 
 async fn remove(app: &TestApp, id: &str, name: &str) -> (u16, Value) {
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{id}/frames/{name}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{id}/frames/{name}")).await;
     let s = r.status().as_u16();
     (s, r.json().await.unwrap_or(Value::Null))
 }
 
 async fn start_job(app: &TestApp, id: &str) -> String {
-    let r = app.create_job(id, "the chair").await;
-    assert_eq!(r.status().as_u16(), 202);
-    let job = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let job = app.submit_job(id, "the chair").await;
     let t = std::time::Instant::now();
     loop {
         let (_, j) = app.get_json(&format!("/v1/jobs/{job}")).await;

@@ -75,6 +75,25 @@ impl TestApp {
         format!("http://{}{}", self.addr, path)
     }
 
+    /// GET `path` (as any answer: the caller checks the status).
+    pub async fn get(&self, path: &str) -> reqwest::Response {
+        self.client.get(self.url(path)).send().await.expect("get")
+    }
+
+    /// POST `path` with no body.
+    pub async fn post_empty(&self, path: &str) -> reqwest::Response {
+        self.client.post(self.url(path)).send().await.expect("post")
+    }
+
+    /// DELETE `path`.
+    pub async fn delete(&self, path: &str) -> reqwest::Response {
+        self.client
+            .delete(self.url(path))
+            .send()
+            .await
+            .expect("delete")
+    }
+
     pub async fn upload(&self, body: Vec<u8>, content_type: &str) -> reqwest::Response {
         self.client
             .post(self.url("/v1/scenes"))
@@ -83,6 +102,17 @@ impl TestApp {
             .send()
             .await
             .expect("upload")
+    }
+
+    /// Upload the tiny scene of `frames` frames (a tar, no top folder), assert 201 and
+    /// return the scene id.
+    pub async fn upload_tiny_scene(&self, frames: usize) -> String {
+        upload_tiny_scene_to(&self.client, &self.url(""), frames).await
+    }
+
+    /// Submit one job for `query` on `scene_id`, assert 202 and return the job id.
+    pub async fn submit_job(&self, scene_id: &str, query: &str) -> String {
+        submit_job(&self.client, &self.url(""), scene_id, query).await
     }
 
     pub async fn get_json(&self, path: &str) -> (u16, serde_json::Value) {
@@ -164,6 +194,85 @@ pub fn tiny_scene_files(frames: usize) -> Vec<(String, Vec<u8>)> {
         b"1 0 0 1\n0 1 0 2\n0 0 1 3\n0 0 0 1\n".to_vec(),
     ));
     files
+}
+
+/// POST the tar archive `tar` to `{base}/v1/scenes` with `client` (which may carry a key),
+/// assert 201 and return the scene id.
+pub async fn upload_scene_to(client: &reqwest::Client, base: &str, tar: Vec<u8>) -> String {
+    let r = client
+        .post(format!("{base}/v1/scenes"))
+        .header("Content-Type", "application/x-tar")
+        .body(tar)
+        .send()
+        .await
+        .expect("upload");
+    id_of(r, 201, &format!("upload to {base}")).await
+}
+
+/// [`upload_scene_to`] with the tiny scene of `frames` frames (a tar, no top folder).
+pub async fn upload_tiny_scene_to(client: &reqwest::Client, base: &str, frames: usize) -> String {
+    upload_scene_to(client, base, tar_of(&tiny_scene_files(frames), None)).await
+}
+
+/// POST one job `{scene_id, query}` to `{base}/v1/jobs` with `client`, assert 202 and
+/// return the job id.
+pub async fn submit_job(
+    client: &reqwest::Client,
+    base: &str,
+    scene_id: &str,
+    query: &str,
+) -> String {
+    let r = client
+        .post(format!("{base}/v1/jobs"))
+        .json(&serde_json::json!({"scene_id": scene_id, "query": query}))
+        .send()
+        .await
+        .expect("job");
+    id_of(r, 202, &format!("job {query:?} at {base}")).await
+}
+
+/// Assert that `r` has the status `want` (else fail with `what` and the body) and return
+/// the `id` of its JSON body.
+async fn id_of(r: reqwest::Response, want: u16, what: &str) -> String {
+    let status = r.status().as_u16();
+    let body: serde_json::Value = r.json().await.unwrap_or(serde_json::Value::Null);
+    assert_eq!(status, want, "{what}: {body}");
+    body["id"].as_str().expect("an id").to_string()
+}
+
+/// GET `url` with `client` and parse the answer as JSON (of any status).
+pub async fn get_json_at(client: &reqwest::Client, url: &str) -> serde_json::Value {
+    let r = client.get(url).send().await.expect("get");
+    r.json().await.expect("a JSON answer")
+}
+
+/// An answer's status, content type ("" when none) and JSON body (Null when not JSON), as
+/// a problem+json check needs them.
+pub async fn problem(r: reqwest::Response) -> (u16, String, serde_json::Value) {
+    let s = r.status().as_u16();
+    let ct = r
+        .headers()
+        .get("content-type")
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_string();
+    (s, ct, r.json().await.unwrap_or(serde_json::Value::Null))
+}
+
+/// Every file below `dir` (none when it does not exist).
+pub fn files_under(dir: &std::path::Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                out.extend(files_under(&p));
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out
 }
 
 /// Pack files as a tar under an optional top-level folder.

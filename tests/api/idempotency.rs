@@ -84,13 +84,7 @@ async fn a_retry_replays_the_first_answer_before_and_after_a_restart() {
 #[tokio::test]
 async fn a_different_body_is_422_and_a_request_in_flight_is_409() {
     let app = TestApp::spawn().await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = app.upload_tiny_scene(3).await;
     let body = json!({"scene_id": sid, "query": "the lamp"});
     assert_eq!(post_job(&app, "k", &body).await.status().as_u16(), 202);
     let other = json!({"scene_id": sid, "query": "the sofa"});

@@ -2,21 +2,10 @@ use crate::helpers::*;
 use serde_json::Value;
 use std::time::Duration;
 
-async fn scene(app: &TestApp) -> String {
-    let r = app
-        .upload(tar_of(&tiny_scene_files(4), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
 #[tokio::test]
 async fn a_job_runs_to_a_box_with_a_trace() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let r = app.create_job(&sid, "the chair by the window").await;
     assert_eq!(r.status().as_u16(), 202);
     let loc = r
@@ -62,30 +51,17 @@ async fn failures_cancels_and_bad_requests() {
     // Long enough that a loaded machine still catches the job running before it ends.
     cfg.pipeline = "test:delay_ms=1500".into();
     let app = TestApp::spawn_with(cfg).await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     // A failing pipeline gives a named reason.
-    let j: Value = app
-        .create_job(&sid, "[fail] the lamp")
-        .await
-        .json()
-        .await
-        .unwrap();
-    let done = app
-        .wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
-        .await;
+    let id = app.submit_job(&sid, "[fail] the lamp").await;
+    let done = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(
         (done["status"].as_str(), done["error"]["code"].as_str()),
         (Some("failed"), Some("no_target_found"))
     );
 
     // Cancel while running.
-    let j: Value = app
-        .create_job(&sid, "the table")
-        .await
-        .json()
-        .await
-        .unwrap();
-    let id = j["id"].as_str().unwrap().to_string();
+    let id = app.submit_job(&sid, "the table").await;
     for _ in 0..200 {
         let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
         if s["status"] == "running" {
@@ -93,12 +69,7 @@ async fn failures_cancels_and_bad_requests() {
         }
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert_eq!(r.status().as_u16(), 200);
     let s = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(
@@ -108,12 +79,7 @@ async fn failures_cancels_and_bad_requests() {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
     assert_eq!(s["status"], "canceled", "{s}");
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert_eq!(
         r.status().as_u16(),
         409,
@@ -158,18 +124,12 @@ async fn failures_cancels_and_bad_requests() {
 #[tokio::test]
 async fn listing_pages_with_a_cursor_and_filters() {
     let app = TestApp::spawn().await;
-    let a = scene(&app).await;
-    let b = scene(&app).await;
+    let a = app.upload_tiny_scene(4).await;
+    let b = app.upload_tiny_scene(4).await;
     let mut ids = Vec::new();
     for i in 0..5 {
         let sid = if i % 2 == 0 { &a } else { &b };
-        let j: Value = app
-            .create_job(sid, &format!("object {i}"))
-            .await
-            .json()
-            .await
-            .unwrap();
-        ids.push(j["id"].as_str().unwrap().to_string());
+        ids.push(app.submit_job(sid, &format!("object {i}")).await);
     }
     let mut seen = Vec::new();
     let mut cursor = String::new();
@@ -203,23 +163,17 @@ async fn listing_pages_with_a_cursor_and_filters() {
 #[tokio::test]
 async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let store = crate::helpers::open_store(&app.data_dir).await;
     store
         .set_scene_status(&sid, "indexing", None)
         .await
         .unwrap();
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    let id = j["id"].as_str().unwrap();
+    let id = app.submit_job(&sid, "the sofa").await;
     tokio::time::sleep(Duration::from_millis(700)).await;
     let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
     assert_eq!(s["status"], "queued", "waits for the scene");
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(
         r.status().as_u16(),
         204,
@@ -231,10 +185,9 @@ async fn a_job_waits_while_its_scene_indexes_and_metrics_count_it() {
         (Some("canceled"), Some("scene_deleted"))
     );
 
-    let sid = scene(&app).await;
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    app.wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
-        .await;
+    let sid = app.upload_tiny_scene(4).await;
+    let id = app.submit_job(&sid, "the sofa").await;
+    app.wait_job(&id, Duration::from_secs(10)).await;
     let text = app
         .client
         .get(app.url("/metrics"))
@@ -273,9 +226,8 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     // Long enough to be caught running, short enough to finish if the cancel is lost.
     cfg.pipeline = "test:delay_ms=3000".into();
     let app = TestApp::spawn_with(cfg).await;
-    let sid = scene(&app).await;
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    let id = j["id"].as_str().unwrap().to_string();
+    let sid = app.upload_tiny_scene(4).await;
+    let id = app.submit_job(&sid, "the sofa").await;
     let mut running = false;
     for _ in 0..400 {
         let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
@@ -287,12 +239,7 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     }
     assert!(running, "the job never started");
 
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(r.status().as_u16(), 409);
     assert_eq!(r.headers()["content-type"], "application/problem+json");
     let p: Value = r.json().await.unwrap();
@@ -311,21 +258,11 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     );
 
     // Once the job is canceled the scene can go.
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert_eq!(r.status().as_u16(), 200);
     let done = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(done["status"], "canceled", "{done}");
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(r.status().as_u16(), 204);
     assert_eq!(app.get_json(&format!("/v1/scenes/{sid}")).await.0, 404);
     app.stop().await;
@@ -334,7 +271,7 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
 #[tokio::test]
 async fn a_poll_returns_the_trace_in_step_order() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
     assert_eq!(
         j["trace"],
@@ -365,7 +302,7 @@ async fn a_poll_returns_the_trace_in_step_order() {
 #[tokio::test]
 async fn a_new_job_is_reported_queued_even_when_claimed_at_once() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(4).await;
     let store = crate::helpers::open_store(&app.data_dir).await;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let claimer = {

@@ -69,22 +69,9 @@ fn ids(v: &Value, field: &str) -> Vec<String> {
 async fn two_keys_cannot_see_each_others_scenes_or_jobs() {
     let k = keyed(None, None).await;
     let app = &k.app;
-    let r = upload(app, &k.alice).await;
-    assert_eq!(r.status().as_u16(), 201);
-    let sa = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let sb = upload(app, &k.bob).await.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let r = new_job(app, &k.alice, &sa).await;
-    assert_eq!(r.status().as_u16(), 202);
-    let ja = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sa = upload_tiny_scene_to(&k.alice, &app.url(""), 3).await;
+    let sb = upload_tiny_scene_to(&k.bob, &app.url(""), 3).await;
+    let ja = submit_job(&k.alice, &app.url(""), &sa, "the chair").await;
 
     // Bob: alice's scene and job do not exist for him.
     let (s, p) = get(app, &k.bob, &format!("/v1/scenes/{sa}")).await;
@@ -203,12 +190,7 @@ async fn quotas_answer_429_with_retry_after() {
     let scene_len = tar_of(&tiny_scene_files(3), None).len() as i64;
     let k = keyed(Some(2), Some(scene_len + scene_len / 2)).await;
     let app = &k.app;
-    let r = upload(app, &k.alice).await;
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = upload_tiny_scene_to(&k.alice, &app.url(""), 3).await;
     // A second scene would exceed the stored bytes.
     let r = upload(app, &k.alice).await;
     assert_eq!(r.status().as_u16(), 429);

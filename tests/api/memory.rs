@@ -22,14 +22,7 @@ async fn two_jobs(max_memory_mb: u64) -> (Value, Value, bool) {
     cfg.pipeline = "test:delay_ms=700".into();
     cfg.max_memory_mb = max_memory_mb;
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let scene = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let scene = app.upload_tiny_scene(3).await;
     let r = app
         .client
         .post(app.url("/v1/jobs"))

@@ -6,7 +6,6 @@
 use crate::helpers::*;
 use grounder::config::Role;
 use grounder::store::{JobStatus, Store};
-use serde_json::Value;
 use std::time::Duration;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -21,25 +20,11 @@ async fn leases_move_jobs_between_replicas_and_give_up_after_three_attempts() {
     cfg.database_url = Some(url.clone());
     cfg.role = Role::Api;
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = app.upload_tiny_scene(3).await;
     let job = |q: &'static str| {
         let app = &app;
         let sid = sid.clone();
-        async move {
-            let r = app.create_job(&sid, q).await;
-            assert_eq!(r.status().as_u16(), 202);
-            r.json::<Value>().await.unwrap()["id"]
-                .as_str()
-                .unwrap()
-                .to_string()
-        }
+        async move { app.submit_job(&sid, q).await }
     };
     let id = job("the chair").await;
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -88,12 +73,7 @@ async fn leases_move_jobs_between_replicas_and_give_up_after_three_attempts() {
 
     // A cancel through the API replica reaches b's waiters by notification.
     let mut changes = b.events.subscribe(&id);
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/jobs/{id}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/jobs/{id}/cancel")).await;
     assert!(r.status().is_success(), "{}", r.status());
     tokio::time::timeout(Duration::from_secs(5), changes.changed())
         .await

@@ -6,7 +6,6 @@
 
 use crate::helpers::*;
 use grounder::store::{idempotency::Begin, Store};
-use serde_json::Value;
 use std::path::Path;
 use std::time::{Duration, Instant, SystemTime};
 
@@ -47,14 +46,7 @@ async fn a_replica_releases_only_what_dead_replicas_left() {
     };
     // A scene stored by a first replica, which then stops.
     let first = TestApp::spawn_with(cfg()).await;
-    let r = first
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = first.upload_tiny_scene(3).await;
     first.stop().await;
 
     // Replica X is alive (it heartbeats) and mid-request and mid-import; replica Z died
@@ -185,18 +177,12 @@ async fn a_worker_replica_takes_over_indexing_that_a_killed_replica_left() {
     let mut a = start("all");
     let _worker = start("worker");
     let store = Store::connect(&url, dir.path()).await.unwrap();
-    let r = reqwest::Client::new()
-        .post(format!("{}/v1/scenes", a.base))
-        .header("Content-Type", "application/x-tar")
-        .body(crate::crash::scene_with_masks(20))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = upload_scene_to(
+        &reqwest::Client::new(),
+        &a.base,
+        crate::crash::scene_with_masks(20),
+    )
+    .await;
     let state = || async {
         let row: (String, Option<String>, i64) =
             sqlx::query_as("SELECT status, index_owner, index_done FROM scenes WHERE id = $1")
@@ -272,14 +258,7 @@ async fn one_indexer_holds_a_scene_until_its_lease_runs_out() {
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.database_url = Some(url.clone());
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = app.upload_tiny_scene(3).await;
     app.stop().await;
     let open = || async {
         Store::connect(&url, dir.path())

@@ -4,16 +4,6 @@ use crate::helpers::*;
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
 
-async fn scene(app: &TestApp) -> String {
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
 async fn cond_get(app: &TestApp, path: &str, etag: &str) -> reqwest::Response {
     app.client
         .get(app.url(path))
@@ -26,13 +16,8 @@ async fn cond_get(app: &TestApp, path: &str, etag: &str) -> reqwest::Response {
 #[tokio::test]
 async fn etags_answer_304_until_the_job_or_scene_changes() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/scenes/{sid}")))
-        .send()
-        .await
-        .unwrap();
+    let sid = app.upload_tiny_scene(3).await;
+    let r = app.get(&format!("/v1/scenes/{sid}")).await;
     let tag = r.headers()["etag"].to_str().unwrap().to_string();
     let r = cond_get(&app, &format!("/v1/scenes/{sid}"), &tag).await;
     assert_eq!(r.status().as_u16(), 304);
@@ -41,14 +26,12 @@ async fn etags_answer_304_until_the_job_or_scene_changes() {
     let r = cond_get(&app, &format!("/v1/scenes/{sid}"), "\"stale\"").await;
     assert_eq!(r.status().as_u16(), 200);
 
-    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
-    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let id = app.submit_job(&sid, "the lamp").await;
+    let path = format!("/v1/jobs/{id}");
     let r = app.client.get(app.url(&path)).send().await.unwrap();
     let tag = r.headers()["etag"].to_str().unwrap().to_string();
     let first: Value = r.json().await.unwrap();
-    let done = app
-        .wait_job(j["id"].as_str().unwrap(), Duration::from_secs(10))
-        .await;
+    let done = app.wait_job(&id, Duration::from_secs(10)).await;
     assert_eq!(done["status"], "succeeded");
     // Changed since: 200 with a new tag; then 304 with that tag.
     let r = cond_get(&app, &path, &tag).await;
@@ -68,9 +51,9 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.pipeline = "test:delay_ms=1500".into();
     let app = TestApp::spawn_with(cfg).await;
-    let sid = scene(&app).await;
-    let j: Value = app.create_job(&sid, "the lamp").await.json().await.unwrap();
-    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let sid = app.upload_tiny_scene(3).await;
+    let id = app.submit_job(&sid, "the lamp").await;
+    let path = format!("/v1/jobs/{id}");
     let started = Instant::now();
     let r = app
         .client
@@ -98,8 +81,8 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
     assert!(took >= Duration::from_millis(1000), "it did wait: {took:?}");
 
     // A running job past N seconds comes back with its current state.
-    let j: Value = app.create_job(&sid, "the sofa").await.json().await.unwrap();
-    let path = format!("/v1/jobs/{}", j["id"].as_str().unwrap());
+    let id = app.submit_job(&sid, "the sofa").await;
+    let path = format!("/v1/jobs/{id}");
     let started = Instant::now();
     let r = app
         .client
@@ -128,7 +111,7 @@ async fn prefer_wait_returns_within_100ms_of_the_job_ending() {
 #[tokio::test]
 async fn a_batch_of_queries_makes_one_job_each_in_order() {
     let app = TestApp::spawn().await;
-    let sid = scene(&app).await;
+    let sid = app.upload_tiny_scene(3).await;
     let queries = ["the lamp", "the sofa", "the chair", "[fail] the bed"];
     let r = app
         .client

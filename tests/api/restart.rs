@@ -14,14 +14,7 @@ fn start(data_dir: &std::path::Path, delay_ms: u64) -> Server {
 async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
     let t = Instant::now();
     loop {
-        let j: Value = c
-            .get(url)
-            .send()
-            .await
-            .expect("get")
-            .json()
-            .await
-            .expect("json");
+        let j: Value = get_json_at(c, url).await;
         if j["status"] == want || t.elapsed() > Duration::from_secs(20) {
             return j;
         }
@@ -34,37 +27,9 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     let dir = tempfile::tempdir().unwrap();
     let c = reqwest::Client::new();
     let mut s = start(dir.path(), 1500);
-    let r = c
-        .post(format!("{}/v1/scenes", s.base))
-        .header("content-type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .unwrap();
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let job: Value = c
-        .post(format!("{}/v1/jobs", s.base))
-        .json(&serde_json::json!({"scene_id": sid, "query": "the bed"}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let jid = job["id"].as_str().unwrap().to_string();
-    let queued: Value = c
-        .post(format!("{}/v1/jobs", s.base))
-        .json(&serde_json::json!({"scene_id": sid, "query": "the desk"}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let qid = queued["id"].as_str().unwrap().to_string();
+    let sid = upload_tiny_scene_to(&c, &s.base, 3).await;
+    let jid = submit_job(&c, &s.base, &sid, "the bed").await;
+    let qid = submit_job(&c, &s.base, &sid, "the desk").await;
     let j = wait_status(&c, &format!("{}/v1/jobs/{jid}", s.base), "running").await;
     assert_eq!(j["status"], "running");
 
@@ -85,16 +50,7 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     // is not counted.
     signal(&mut s.child, "-KILL");
     let mut s = start(dir.path(), 3000);
-    let job: Value = c
-        .post(format!("{}/v1/jobs", s.base))
-        .json(&serde_json::json!({"scene_id": sid, "query": "the lamp"}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let tid = job["id"].as_str().unwrap().to_string();
+    let tid = submit_job(&c, &s.base, &sid, "the lamp").await;
     wait_status(&c, &format!("{}/v1/jobs/{tid}", s.base), "running").await;
     signal(&mut s.child, "-TERM");
     let store = grounder::store::Store::open(dir.path()).await.unwrap();

@@ -77,12 +77,7 @@ async fn uploads_in_every_archive_kind_and_layout() {
     let id = j["id"].as_str().unwrap();
     let (s, one) = app.get_json(&format!("/v1/scenes/{id}")).await;
     assert_eq!((s, one["id"].as_str()), (200, Some(id)));
-    let r = app
-        .client
-        .delete(app.url(&format!("/v1/scenes/{id}")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.delete(&format!("/v1/scenes/{id}")).await;
     assert_eq!(r.status().as_u16(), 204);
     let (s, p) = app.get_json(&format!("/v1/scenes/{id}")).await;
     assert_eq!((s, p["code"].as_str()), (404, Some("scene_not_found")));
@@ -252,14 +247,7 @@ async fn bad_uploads_are_refused_cleanly() {
     ];
     for (what, body, status, code) in cases {
         let r = app.upload(body, "application/x-tar").await;
-        let got = r.status().as_u16();
-        let ct = r
-            .headers()
-            .get("content-type")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_string();
-        let p: serde_json::Value = r.json().await.unwrap_or_default();
+        let (got, ct, p) = problem(r).await;
         assert_eq!(
             (got, p["code"].as_str().unwrap_or("")),
             (status, code),
@@ -279,28 +267,13 @@ async fn bad_uploads_are_refused_cleanly() {
         0,
         "no partial scene"
     );
-    let leftovers: Vec<_> = walk(&app.data_dir)
+    let leftovers: Vec<_> = files_under(&app.data_dir)
         .into_iter()
         .filter(|p| !p.to_string_lossy().contains("grounder.db"))
         .collect();
     assert!(leftovers.is_empty(), "no stray files: {leftovers:?}");
     assert!(!dir.path().parent().unwrap().join("evil.txt").exists());
     app.stop().await;
-}
-
-fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut out = Vec::new();
-    if let Ok(rd) = std::fs::read_dir(dir) {
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                out.extend(walk(&p));
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out
 }
 
 /// Indexing with the oracle detector: progress, re-indexing on request, and the refusal
@@ -354,12 +327,7 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
     let dets = store.detections(&id, "oracle").await.unwrap();
     let n: usize = dets.values().map(Vec::len).sum();
     assert!(n > 0, "the oracle finds the synthetic furniture");
-    let r = app
-        .client
-        .post(app.url(&format!("/v1/scenes/{id}/index")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty(&format!("/v1/scenes/{id}/index")).await;
     assert_eq!(r.status().as_u16(), 202);
     let s = wait_ready().await;
     assert_eq!(s["status"], "ready");
@@ -374,12 +342,7 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
         again, n,
         "re-indexing replaces, never duplicates, detections"
     );
-    let r = app
-        .client
-        .post(app.url("/v1/scenes/nope/index"))
-        .send()
-        .await
-        .unwrap();
+    let r = app.post_empty("/v1/scenes/nope/index").await;
     assert_eq!(r.status().as_u16(), 404);
     app.stop().await;
 }

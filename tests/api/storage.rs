@@ -173,12 +173,7 @@ async fn a_scene_uploaded_on_replica_a_is_fetched_from_the_bucket_by_replica_b()
         std::fs::read(b_scene.join("color/1.jpg")).expect("B's frame"),
         a_frame
     );
-    let r = b
-        .client
-        .get(b.url(&format!("/v1/scenes/{id}/frames/1.jpg")))
-        .send()
-        .await
-        .expect("frame");
+    let r = b.get(&format!("/v1/scenes/{id}/frames/1.jpg")).await;
     assert_eq!(r.status().as_u16(), 200);
     assert_eq!(r.bytes().await.expect("bytes").to_vec(), a_frame);
 
@@ -187,28 +182,17 @@ async fn a_scene_uploaded_on_replica_a_is_fetched_from_the_bucket_by_replica_b()
     assert!(arts.contains_key("test.txt"), "{arts:?}");
     std::fs::remove_dir_all(dir_b.path().join("artifacts").join(&job_id)).expect("rm artifacts");
     let r = b
-        .client
-        .get(b.url(&format!("/v1/jobs/{job_id}/artifacts/test.txt")))
-        .send()
-        .await
-        .expect("artifact");
+        .get(&format!("/v1/jobs/{job_id}/artifacts/test.txt"))
+        .await;
     assert_eq!(r.status().as_u16(), 200);
     assert_eq!(r.text().await.expect("text"), "the chair");
     let r = b
-        .client
-        .get(b.url(&format!("/v1/jobs/{job_id}/artifacts/nothing.jpg")))
-        .send()
-        .await
-        .expect("artifact");
+        .get(&format!("/v1/jobs/{job_id}/artifacts/nothing.jpg"))
+        .await;
     assert_eq!(r.status().as_u16(), 404);
 
     // Deleting the scene removes its objects and its jobs' artifacts from the bucket.
-    let r = b
-        .client
-        .delete(b.url(&format!("/v1/scenes/{id}")))
-        .send()
-        .await
-        .expect("delete");
+    let r = b.delete(&format!("/v1/scenes/{id}")).await;
     assert_eq!(r.status().as_u16(), 204);
     assert!(objects(&probe, &format!("scenes/{id}")).await.is_empty());
     assert!(objects(&probe, &format!("artifacts/{job_id}"))

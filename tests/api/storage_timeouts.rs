@@ -8,9 +8,8 @@ use std::time::{Duration, Instant};
 
 use grounder::config::Config;
 use grounder::storage::{RemoteLimits, Storage};
-use serde_json::Value;
 
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
+use crate::helpers::{test_config, TestApp};
 use crate::storage::{copy_db, Moto};
 
 /// Short bounds: a failing request ends within 2 + 2 s.
@@ -37,14 +36,7 @@ async fn a_job_fails_storage_error_within_the_bounds_when_the_bucket_refuses_con
     // Replica A stores a scene in the bucket; replica B (a copy of A's database, an empty
     // data dir) starts while the bucket is up, then the bucket goes away.
     let a = TestApp::spawn_with_env(limited(dir_a.path()), &env).await;
-    let r = a
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = a.upload_tiny_scene(3).await;
     a.stop().await;
     copy_db(dir_a.path(), dir_b.path());
     let cfg = limited(dir_b.path());
@@ -62,12 +54,7 @@ async fn a_job_fails_storage_error_within_the_bounds_when_the_bucket_refuses_con
     );
 
     let t = Instant::now();
-    let r = b.create_job(&sid, "the chair").await;
-    assert_eq!(r.status().as_u16(), 202);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let id = b.submit_job(&sid, "the chair").await;
     let job = b.wait_job(&id, bound + SLACK * 4).await;
     let took = t.elapsed();
     assert_eq!(job["status"], "failed", "{job}");

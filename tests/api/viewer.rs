@@ -7,20 +7,10 @@ use std::time::Duration;
 #[tokio::test]
 async fn pages_assets_and_exports_are_served_or_refused_clearly() {
     let app = TestApp::spawn().await;
-    let up = app
-        .upload(tar_of(&tiny_scene_files(4), None), "application/x-tar")
-        .await;
-    assert_eq!(up.status(), 201);
-    let scene: serde_json::Value = up.json().await.unwrap();
-    let sid = scene["id"].as_str().unwrap().to_string();
+    let sid = app.upload_tiny_scene(4).await;
 
     // Scene page: HTML naming the scene, with the import map of the vendored three.js.
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/scenes/{sid}/view")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.get(&format!("/v1/scenes/{sid}/view")).await;
     assert_eq!(r.status(), 200);
     assert!(r.headers()["content-type"]
         .to_str()
@@ -36,12 +26,7 @@ async fn pages_assets_and_exports_are_served_or_refused_clearly() {
         ("viewer.css", "text/css"),
         ("three-LICENSE.txt", "text/plain"),
     ] {
-        let r = app
-            .client
-            .get(app.url(&format!("/v1/viewer/{file}")))
-            .send()
-            .await
-            .unwrap();
+        let r = app.get(&format!("/v1/viewer/{file}")).await;
         assert_eq!(r.status(), 200, "{file}");
         assert!(
             r.headers()["content-type"]
@@ -68,12 +53,7 @@ async fn pages_assets_and_exports_are_served_or_refused_clearly() {
     assert_eq!(frames[1]["position"], serde_json::json!([1.5, 2.0, 3.0]));
     assert_eq!(frames[3]["usable"], false);
     assert!(frames[3]["position"].is_null());
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/scenes/{sid}/frames/00001.jpg")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.get(&format!("/v1/scenes/{sid}/frames/00001.jpg")).await;
     assert_eq!(r.status(), 200);
     assert!(image::load_from_memory(&r.bytes().await.unwrap()).is_ok());
     let (s, _) = app
@@ -83,11 +63,8 @@ async fn pages_assets_and_exports_are_served_or_refused_clearly() {
 
     // Scene points: a PLY whose header counts what the body holds; cached on disk.
     let r = app
-        .client
-        .get(app.url(&format!("/v1/scenes/{sid}/points.ply?voxel=0.05")))
-        .send()
-        .await
-        .unwrap();
+        .get(&format!("/v1/scenes/{sid}/points.ply?voxel=0.05"))
+        .await;
     assert_eq!(r.status(), 200);
     let ply = r.bytes().await.unwrap();
     let end = ply
@@ -140,12 +117,7 @@ async fn pages_assets_and_exports_are_served_or_refused_clearly() {
     assert_eq!(s, 404);
     let (s, p) = app.get_json("/v1/jobs/0123-abc/object.ply").await;
     assert_eq!((s, p["code"].as_str()), (404, Some("job_not_found")));
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/jobs/{jid}/view")))
-        .send()
-        .await
-        .unwrap();
+    let r = app.get(&format!("/v1/jobs/{jid}/view")).await;
     assert_eq!(r.status(), 200);
     assert!(r
         .text()

@@ -60,17 +60,7 @@ async fn a_failed_delivery_is_retried_and_both_attempts_are_listed() {
     let app = TestApp::spawn_with(cfg).await;
     let c = client_with_key(&secret);
     let (url, got) = receiver().await;
-    let r = c
-        .post(app.url("/v1/scenes"))
-        .header("content-type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .unwrap();
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = upload_tiny_scene_to(&c, &app.url(""), 3).await;
     let r = c
         .post(app.url("/v1/jobs"))
         .json(&json!({"scene_id": sid, "query": "the lamp", "webhook_url": url}))
@@ -129,17 +119,7 @@ async fn private_and_loopback_webhook_urls_are_refused_by_default() {
     let (secret, _) = create_key(dir.path(), "robot", false, None, None).await;
     let app = TestApp::spawn_with(test_config(dir.path().to_path_buf())).await;
     let c = client_with_key(&secret);
-    let r = c
-        .post(app.url("/v1/scenes"))
-        .header("content-type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .unwrap();
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = upload_tiny_scene_to(&c, &app.url(""), 3).await;
     for (url, code) in [
         ("http://127.0.0.1:9/hook", "webhook_url_not_allowed"),
         ("http://10.0.0.7/hook", "webhook_url_not_allowed"),

@@ -3,8 +3,8 @@
 //! objects, chairs under tables, close-ups) and its queries follow FORMATS §2.
 
 use super::synth_backproject::run_family;
+use super::synth_output::snapshot;
 use grounder::synth::{generate_family, Family, Layout, Noise, SynthParams, SynthScene};
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// 320x240 colour, 160x120 depth, 10 frames.
@@ -13,25 +13,6 @@ fn small(seed: u64) -> SynthParams {
         frames: 10,
         ..SynthParams::small(seed)
     }
-}
-
-fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.insert(
-                    p.strip_prefix(dir).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    out
 }
 
 #[test]

@@ -6,8 +6,9 @@ use super::models::{model, Mat, Surface};
 use super::place::Builder;
 use super::prim::Shape;
 use crate::geometry::Aabb;
+use crate::synth::build::alignment;
 use crate::synth::SynthObject;
-use nalgebra::{Matrix4, Rotation3, Vector3};
+use nalgebra::{Matrix4, Vector3};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -329,16 +330,7 @@ pub(crate) fn build(seed: u64) -> PropWorld {
     // Axis alignment: rotation about z and an offset.
     let theta = (b.r(5.0, 85.0) + 90.0 * b.rng.gen_range(0..4) as f64).to_radians();
     let t = Vector3::new(b.r(-4.0, 4.0), b.r(-4.0, 4.0), b.r(-0.1, 0.3));
-    let rot = Rotation3::from_axis_angle(&Vector3::z_axis(), theta);
-    let mut align = Matrix4::identity();
-    align.fixed_view_mut::<3, 3>(0, 0).copy_from(rot.matrix());
-    align.fixed_view_mut::<3, 1>(0, 3).copy_from(&t);
-    let mut align_inv = Matrix4::identity();
-    let rt = rot.matrix().transpose();
-    align_inv.fixed_view_mut::<3, 3>(0, 0).copy_from(&rt);
-    align_inv
-        .fixed_view_mut::<3, 1>(0, 3)
-        .copy_from(&(-(rt * t)));
+    let (align, align_inv) = alignment(theta, t);
     let wall_rgb = [b.r(0.5, 0.7), b.r(0.5, 0.7), b.r(0.45, 0.65)];
     let tiles = b.rng.gen_bool(0.5);
     let floor_rgb = if tiles {

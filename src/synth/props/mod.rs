@@ -32,17 +32,11 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
     params.validate()?;
     let world = layout::build(params.seed);
     let poses = path::camera_path(&world, params.frames, params.seed);
-    let labels: Vec<(u32, &str)> = world
-        .objects
-        .iter()
-        .map(|o| (o.id, o.label.as_str()))
-        .collect();
     let head = SceneHead {
         scene_id: scene_id(params.seed),
         room_size: world.size,
         align: world.align,
         align_inv: world.align_inv,
-        labels: &labels,
         objects: world.output_objects(),
     };
     let renderer = render::Renderer::new(&world, params.seed);
@@ -53,10 +47,8 @@ pub fn generate_with(params: &SynthParams, out_dir: &Path, tar: bool) -> Result<
         head,
         &poses,
         |_, pose, color_k, depth_k| {
-            let color = renderer.render_color(pose, color_k);
             (
-                color.rgb,
-                color.instance,
+                renderer.render_color(pose, color_k),
                 renderer.render_depth(pose, depth_k),
             )
         },

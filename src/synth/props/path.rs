@@ -4,6 +4,7 @@
 
 use super::layout::PropWorld;
 use crate::geometry::camera::look_at_pose;
+use crate::synth::build::look_along;
 use nalgebra::{Matrix4, Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -63,12 +64,7 @@ fn loop_pose(
     }
     let yaw = phi + std::f64::consts::PI + rng.gen_range(-0.7..0.7) + 0.3 * (2.0 * TAU * s).sin();
     let pitch: f64 = rng.gen_range(-0.65..-0.15);
-    let dir = Vector3::new(
-        yaw.cos() * pitch.cos(),
-        yaw.sin() * pitch.cos(),
-        pitch.sin(),
-    );
-    look_at_pose(eye, eye + dir, Vector3::z())
+    look_along(eye, yaw, pitch)
 }
 
 /// A view 0.6–1.5 m from the next target that can be reached with a free eye.

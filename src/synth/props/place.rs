@@ -6,26 +6,12 @@ use super::layout::PropObject;
 use super::models::{colours, model, Mat, Model, Surface, CLUTTER};
 use super::prim::Shape;
 use crate::geometry::Aabb;
+use crate::synth::build::{overlaps, union};
 use crate::synth::catalog::palette;
 use rand::seq::SliceRandom;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
-
-pub(super) fn union(parts: &[Aabb]) -> Aabb {
-    let mut b = parts[0];
-    for p in &parts[1..] {
-        for i in 0..3 {
-            b.min[i] = b.min[i].min(p.min[i]);
-            b.max[i] = b.max[i].max(p.max[i]);
-        }
-    }
-    b
-}
-
-fn boxes_overlap(a: &Aabb, b: &Aabb, margin: f64) -> bool {
-    (0..3).all(|i| a.min[i] < b.max[i] + margin && b.min[i] < a.max[i] + margin)
-}
 
 /// Horizontal distance from (x, y) to a box's footprint.
 fn dist_xy(x: f64, y: f64, b: &Aabb) -> f64 {
@@ -38,7 +24,7 @@ fn dist_xy(x: f64, y: f64, b: &Aabb) -> f64 {
 /// frustums by their round footprint, so chairs can go under round tables.
 pub(super) fn clash(a: &Shape, b: &Shape, margin: f64) -> bool {
     let (ba, bb) = (a.aabb(), b.aabb());
-    if !boxes_overlap(&ba, &bb, margin) {
+    if !overlaps(&ba, &bb, margin) {
         return false;
     }
     for (s, other) in [(a, &bb), (b, &ba)] {
@@ -89,12 +75,12 @@ impl Builder {
             && u.max[1] <= self.d
             && u.min[2] >= -1e-9
             && u.max[2] <= self.h - 0.05;
-        if !inside || self.zones.iter().any(|z| boxes_overlap(z, &u, 0.0)) {
+        if !inside || self.zones.iter().any(|z| overlaps(z, &u, 0.0)) {
             return false;
         }
         self.objects.iter().enumerate().all(|(i, o)| {
             let margin = if Some(i) == base { -1e-6 } else { 0.02 };
-            !boxes_overlap(&o.aabb, &u, margin)
+            !overlaps(&o.aabb, &u, margin)
                 || !o
                     .shapes
                     .iter()

@@ -6,7 +6,7 @@ use super::layout::PropWorld;
 use super::models::Mat;
 use super::prim::Shape;
 use crate::geometry::Intrinsics;
-use crate::synth::render::{hash, DepthFrame};
+use crate::synth::render::{hash, ColorFrame, DepthFrame};
 use nalgebra::Matrix4;
 
 /// Entries of the linear -> display (gamma 2.2) lookup table.
@@ -32,14 +32,6 @@ pub(crate) struct Renderer {
     floor: [f64; 3],
     tiles: bool,
     seed: u64,
-}
-
-/// A rendered colour frame.
-pub(crate) struct ColorFrame {
-    /// Interleaved 8-bit RGB, row-major.
-    pub rgb: Vec<u8>,
-    /// Instance id per colour pixel (0 = floor, walls, ceiling).
-    pub instance: Vec<u16>,
 }
 
 struct RayHit {

@@ -3,7 +3,7 @@
 
 use crate::crash::{kill, start};
 use crate::frames::more_frames;
-use crate::helpers::{tar_of, tiny_scene_files};
+use crate::helpers::{tar_of, upload_tiny_scene_to};
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
@@ -30,16 +30,7 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
     ];
     let mut s = start(&data, &env);
     let c = reqwest::Client::new();
-    let r = c
-        .post(format!("{}/v1/scenes", s.base))
-        .header("content-type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .expect("upload");
-    assert_eq!(r.status().as_u16(), 201);
-    let scene: Value = r.json().await.expect("json");
-    let id = scene["id"].as_str().expect("id").to_string();
+    let id = upload_tiny_scene_to(&c, &s.base, 3).await;
     let colour = data.join("scenes").join(&id).join("color");
     let before = colour_files(&colour);
     assert_eq!(before.len(), 3, "{before:?}");

@@ -1,7 +1,6 @@
 //! What artifacts are served with: browsers must not guess their type.
 
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
-use serde_json::Value;
+use crate::helpers::{test_config, TestApp};
 
 #[tokio::test]
 async fn artifacts_are_served_with_nosniff() {
@@ -9,23 +8,11 @@ async fn artifacts_are_served_with_nosniff() {
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.pipeline = "test:delay_ms=10".into();
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let scene: Value = r.json().await.expect("json");
-    let r = app
-        .create_job(scene["id"].as_str().expect("id"), "<html>the chair")
-        .await;
-    let job: Value = r.json().await.expect("json");
-    let id = job["id"].as_str().expect("id");
-    let j = app.wait_job(id, std::time::Duration::from_secs(10)).await;
+    let scene = app.upload_tiny_scene(3).await;
+    let id = app.submit_job(&scene, "<html>the chair").await;
+    let j = app.wait_job(&id, std::time::Duration::from_secs(10)).await;
     assert_eq!(j["status"], "succeeded", "{j}");
-    let r = app
-        .client
-        .get(app.url(&format!("/v1/jobs/{id}/artifacts/test.txt")))
-        .send()
-        .await
-        .expect("get");
+    let r = app.get(&format!("/v1/jobs/{id}/artifacts/test.txt")).await;
     assert_eq!(r.status().as_u16(), 200);
     assert_eq!(
         r.headers()

@@ -3,20 +3,9 @@
 
 use super::{assert_peak_growth_under, vm_hwm_kb};
 use crate::frames::more_frames;
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
+use crate::helpers::{problem, tar_of, test_config, tiny_scene_files, TestApp};
 use serde_json::Value;
 use std::time::{Duration, Instant};
-
-async fn problem(r: reqwest::Response) -> (u16, String, Value) {
-    let s = r.status().as_u16();
-    let ct = r
-        .headers()
-        .get("content-type")
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("")
-        .to_string();
-    (s, ct, r.json().await.unwrap_or(Value::Null))
-}
 
 #[tokio::test]
 async fn a_scene_over_the_frames_x_pixels_cap_is_refused_at_upload_and_at_append() {
@@ -45,12 +34,8 @@ async fn a_scene_over_the_frames_x_pixels_cap_is_refused_at_upload_and_at_append
     );
     assert_eq!(app.get_json("/healthz").await.0, 200);
 
-    let r = app
-        .upload(tar_of(&tiny_scene_files(2), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201, "two frames fit");
-    let scene: Value = r.json().await.expect("json");
-    let id = scene["id"].as_str().expect("id");
+    // Two frames fit.
+    let id = app.upload_tiny_scene(2).await;
     let r = app
         .client
         .post(app.url(&format!("/v1/scenes/{id}/frames")))
@@ -109,12 +94,8 @@ async fn finished_jobs_and_their_artifacts_go_after_the_retention() {
     cfg.pipeline = "test:delay_ms=10".into();
     cfg.job_retention_days = 1.5 / 86_400.0;
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let scene: Value = r.json().await.expect("json");
-    let sid = scene["id"].as_str().expect("id");
-    let r = app.create_job(sid, "the chair").await;
+    let sid = app.upload_tiny_scene(3).await;
+    let r = app.create_job(&sid, "the chair").await;
     let job: Value = r.json().await.expect("json");
     let id = job["id"].as_str().expect("id").to_string();
     let j = app.wait_job(&id, Duration::from_secs(10)).await;

@@ -9,7 +9,7 @@ mod headers;
 mod limits;
 mod watchdog;
 
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
+use crate::helpers::{problem, tar_of, test_config, tiny_scene_files, TestApp};
 
 /// A PNG chunk: length, type, data, CRC over type and data.
 fn png_chunk(kind: &[u8; 4], data: &[u8]) -> Vec<u8> {
@@ -59,12 +59,7 @@ pub(super) fn assert_peak_growth_under(before: Option<u64>, kb: u64) {
 
 /// Fail unless the server still answers `/healthz` with 200 (after `what`).
 pub(super) async fn assert_still_answers(app: &TestApp, what: &str) {
-    let health = app
-        .client
-        .get(app.url("/healthz"))
-        .send()
-        .await
-        .expect("the server still answers");
+    let health = app.get("/healthz").await;
     assert_eq!(health.status().as_u16(), 200, "{what}");
 }
 
@@ -109,14 +104,7 @@ async fn image_dimension_bombs_are_refused_and_the_server_lives() {
         let body = tar_of(&files, None);
         assert!(body.len() < 100_000, "{what}: the input itself is small");
         let r = app.upload(body, "application/x-tar").await;
-        let status = r.status().as_u16();
-        let ct = r
-            .headers()
-            .get("content-type")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_string();
-        let p: serde_json::Value = r.json().await.unwrap_or_default();
+        let (status, ct, p) = problem(r).await;
         assert_eq!(
             (status, p["code"].as_str().unwrap_or("")),
             (413, "image_too_large"),
@@ -146,18 +134,10 @@ async fn a_panicking_job_fails_alone_and_the_worker_goes_on() {
     cfg.workers = 1;
     cfg.pipeline = "test:delay_ms=10".into();
     let app = TestApp::spawn_with(cfg).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    assert_eq!(r.status().as_u16(), 201);
-    let scene: serde_json::Value = r.json().await.expect("json");
-    let scene_id = scene["id"].as_str().expect("id").to_string();
+    let scene_id = app.upload_tiny_scene(3).await;
     let mut ids = Vec::new();
     for q in ["the chair [panic]", "the table [panic]", "the lamp"] {
-        let r = app.create_job(&scene_id, q).await;
-        assert_eq!(r.status().as_u16(), 202);
-        let j: serde_json::Value = r.json().await.expect("json");
-        ids.push(j["id"].as_str().expect("id").to_string());
+        ids.push(app.submit_job(&scene_id, q).await);
     }
     let mut states = Vec::new();
     for id in &ids {
@@ -193,11 +173,7 @@ async fn jobs_queued_on_a_scene_that_fails_indexing_fail_with_it() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = test_config(dir.path().to_path_buf());
     let app = TestApp::spawn_with(cfg.clone()).await;
-    let r = app
-        .upload(tar_of(&tiny_scene_files(3), None), "application/x-tar")
-        .await;
-    let scene: serde_json::Value = r.json().await.expect("json");
-    let scene_id = scene["id"].as_str().expect("id").to_string();
+    let scene_id = app.upload_tiny_scene(3).await;
     app.stop().await;
 
     let db = dir.path().join("grounder.db");

@@ -1,7 +1,7 @@
 //! The watchdog: a worker that dies half-way through a job leaves no row `running`, the
 //! live-worker gauge counts it out, and `/readyz` is not ready once no worker is left.
 
-use crate::helpers::{tar_of, test_config, tiny_scene_files};
+use crate::helpers::{submit_job, test_config, upload_tiny_scene_to};
 use grounder::startup::Application;
 use serde_json::Value;
 use std::time::{Duration, Instant};
@@ -45,22 +45,9 @@ async fn a_dead_worker_fails_its_job_and_makes_the_service_not_ready() {
     assert_eq!(gauge(&m, "grounder_workers_alive"), Some(1.0), "{m}");
     assert_eq!(text("/readyz").await.0, 200);
 
-    let r = c
-        .post(format!("{base}/v1/scenes"))
-        .header("content-type", "application/x-tar")
-        .body(tar_of(&tiny_scene_files(3), None))
-        .send()
-        .await
-        .expect("upload");
-    let scene: Value = r.json().await.expect("json");
-    let r = c
-        .post(format!("{base}/v1/jobs"))
-        .json(&serde_json::json!({"scene_id": scene["id"], "query": "the chair"}))
-        .send()
-        .await
-        .expect("job");
-    let job: Value = r.json().await.expect("json");
-    let job_url = format!("{base}/v1/jobs/{}", job["id"].as_str().expect("id"));
+    let scene = upload_tiny_scene_to(&c, &base, 3).await;
+    let job = submit_job(&c, &base, &scene, "the chair").await;
+    let job_url = format!("{base}/v1/jobs/{job}");
     let get_job = || {
         let (c, u) = (c.clone(), job_url.clone());
         async move {
