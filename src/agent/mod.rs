@@ -240,16 +240,17 @@ impl VlmGrounder {
                 grounding::Grounded::NoneOffered(why) => {
                     // Once: the frames the detector left out, else the VLM's "not here".
                     let slot = self.compute_slot(ctx).await?;
-                    let wider =
-                        match preselect::widened(self, ctx, &analysis, &pre).await {
-                            Some(w) => w,
-                            _ => return Err(JobFailure::new(
+                    let wider = match preselect::widened(self, ctx, &analysis, &pre).await {
+                        Some(w) => w,
+                        _ => {
+                            return Err(JobFailure::new(
                                 "target_not_found",
                                 format!(
                                     "the VLM saw the target in none of the offered frames: {why}"
                                 ),
-                            )),
-                        };
+                            ))
+                        }
+                    };
                     still_wanted(&ctx.cancel, "stitching")?;
                     grids = stitching::run(self, ctx, &wider).await?;
                     pre = wider;

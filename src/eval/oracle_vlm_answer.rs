@@ -263,6 +263,13 @@ fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
     }
 }
 
+/// No offered frame shows `target`, while some frame of the scene does (so the VLM can
+/// be shown it once the other frames are offered).
+pub fn not_offered(scene: &SceneTruth, target: u32, offered: &[u32]) -> bool {
+    offered.iter().all(|&i| !scene.shows(i, target))
+        && (0..scene.frames.len() as u32).any(|i| scene.shows(i, target))
+}
+
 /// The best image id: among the offered (else all) frames, not rejected, the one that
 /// shows the target best ([`SceneTruth::visibility`]: most pixels, halved when cut by the
 /// image border).
@@ -279,10 +286,19 @@ pub fn best_frame(
         .copied()
         .filter(|i| !rejected.contains(i))
         .collect();
+    // Frames that show it by the scorer's rule; when none does (an object too small for
+    // every view), any frame holding a pixel of it.
+    let shown_somewhere = (0..scene.frames.len() as u32).any(|i| scene.shows(i, target));
     let pick = |ids: &[u32]| {
         ids.iter()
             .copied()
-            .filter(|&i| scene.pixels(i, target) > 0)
+            .filter(|&i| {
+                if shown_somewhere {
+                    scene.shows(i, target)
+                } else {
+                    scene.pixels(i, target) > 0
+                }
+            })
             .max_by_key(|&i| (scene.visibility(i, target), std::cmp::Reverse(i)))
     };
     // Not visible in any offered frame: answer the best frame overall and let feedback work.
@@ -357,7 +373,7 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
         }
         Mode::Grounding if resolved.is_none() => {
             // A sentence the ground truth does not hold: no frame shows it, so the oracle
-            // names none (the job ends on the retry limit instead of boxing something).
+            // names none (the job ends `target_not_found` instead of boxing something).
             json!({"reasoning": "oracle: this sentence is not in the ground truth",
                    "target_image_id": "none", "reference_image_ids": []})
             .to_string()
@@ -366,8 +382,7 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
             if kind == u8::MAX
                 && conv.offered.as_deref().is_some_and(|o| {
                     resolved.as_ref().is_some_and(|(q, s)| {
-                        s.as_deref()
-                            .is_some_and(|s| o.iter().all(|&i| s.pixels(i, q.target_id) == 0))
+                        s.as_deref().is_some_and(|s| not_offered(s, q.target_id, o))
                     })
                 }) =>
         {
@@ -491,7 +506,30 @@ mod tests {
             color: None,
             size,
             instances,
+            mask_area: u64::from(size.0) * u64::from(size.1),
         }
+    }
+
+    #[test]
+    fn a_sliver_is_not_shown_unless_no_frame_shows_more() {
+        let (w, h) = (640, 480);
+        let sliver = Some((80, [431.0, 0.0, 441.0, 8.0]));
+        let whole = Some((5000, [100.0, 100.0, 180.0, 170.0]));
+        let scene = SceneTruth {
+            frames: vec![frame((w, h), sliver), frame((w, h), whole)],
+        };
+        // 80 of 307 200 pixels is under 0.1 %: frame 0 does not show it, frame 1 does.
+        assert!(!scene.shows(0, 7) && scene.shows(1, 7));
+        assert!(not_offered(&scene, 7, &[0]));
+        assert!(!not_offered(&scene, 7, &[0, 1]));
+        assert_eq!(best_frame(&scene, 7, Some(&[0]), &[]), Some(1));
+        // An object no frame shows by the rule: the frame holding a pixel of it is named,
+        // and "not offered" is never said (another offer would not show it either).
+        let tiny = SceneTruth {
+            frames: vec![frame((w, h), None), frame((w, h), sliver)],
+        };
+        assert!(!not_offered(&tiny, 7, &[0]));
+        assert_eq!(best_frame(&tiny, 7, None, &[]), Some(1));
     }
 
     #[test]

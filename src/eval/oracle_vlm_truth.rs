@@ -42,7 +42,14 @@ pub struct FrameTruth {
     pub size: (u32, u32),
     /// Instances visible in the frame.
     pub instances: HashMap<u32, InstanceStat>,
+    /// Pixels of the instance mask the counts come from (its width x height).
+    pub mask_area: u64,
 }
+
+/// Share of a frame's pixels an object must cover to count as shown in it: the same rule
+/// the evaluation's per-stage checks use (`eval::trace`), so the oracle never claims to see
+/// the target where the scorer says it is not visible (a sliver at the border).
+pub const MIN_VISIBLE_SHARE: f64 = 0.001;
 
 /// All frames of one scene, ordered numerically.
 #[derive(Debug, Clone)]
@@ -58,6 +65,17 @@ impl SceneTruth {
             .get(image_id as usize)
             .and_then(|f| f.instances.get(&instance))
             .map_or(0, |s| s.pixels)
+    }
+
+    /// Does frame `image_id` show `instance`: at least [`MIN_VISIBLE_SHARE`] of the mask's
+    /// pixels (at least one)?
+    pub fn shows(&self, image_id: u32, instance: u32) -> bool {
+        let area = self
+            .frames
+            .get(image_id as usize)
+            .map_or(1, |f| f.mask_area);
+        let min = ((area as f64 * MIN_VISIBLE_SHARE) as u64).max(1);
+        self.pixels(image_id, instance) >= min
     }
 
     /// Does the image border cut `instance` in frame `image_id` (its box reaches within
@@ -272,11 +290,15 @@ fn load_scene(dir: &Path) -> Result<SceneTruth> {
             }
             _ => instances,
         };
+        let mask_area = mask_size.map_or(u64::from(size.0) * u64::from(size.1), |(w, h)| {
+            u64::from(w) * u64::from(h)
+        });
         frames.push(FrameTruth {
             name,
             color,
             size,
             instances,
+            mask_area,
         });
     }
     Ok(SceneTruth { frames })

@@ -133,7 +133,8 @@ impl TargetViews {
     /// Whether the target is visible in the frame (at least 0.1 % of the pixels, min 1).
     pub fn visible(&mut self, frame: &str) -> Option<bool> {
         let (m, _) = self.target_mask(frame)?;
-        let min = ((m.width as f64 * m.height as f64) * 0.001).max(1.0) as usize;
+        let min = ((m.width as f64 * m.height as f64) * super::oracle_vlm_truth::MIN_VISIBLE_SHARE)
+            .max(1.0) as usize;
         Some(m.count() >= min)
     }
 
