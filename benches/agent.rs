@@ -4,7 +4,12 @@
 //! `ms` of each job's trace. Target: non-VLM time ≤ 0.3 s per query on 2 cores.
 //!
 //! `cargo bench --bench agent` (AGENT_BENCH_QUERIES=N, default 12; AGENT_BENCH_FULL=1 adds
-//! a 1296x968 run; AGENT_BENCH_SEGMENTER=SPEC another segmenter, default `depth`).
+//! a 1296x968 run; AGENT_BENCH_SEGMENTER=SPEC another segmenter, default `depth`;
+//! AGENT_BENCH_TILE_CACHE_MB=N the tile cache's bound, default the service's).
+//!
+//! `non_vlm_ms` is wall time: the job's total less the time spent waiting for the VLM.
+//! The process's CPU time over the queries (user + system, the server's background work
+//! included) is printed beside it, being less sensitive to other load on the machine.
 
 #[allow(dead_code)]
 #[path = "../tests/api/fake_vlm.rs"]
@@ -77,6 +82,12 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
     cfg.detector = "oracle".into();
     cfg.segmenter = std::env::var("AGENT_BENCH_SEGMENTER").unwrap_or_else(|_| "depth".into());
     cfg.workers = 1;
+    if let Some(mb) = std::env::var("AGENT_BENCH_TILE_CACHE_MB")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        cfg.tile_cache_mb = mb;
+    }
     cfg.vlm = Some(VlmConfig {
         base_url: vlm.base.clone(),
         api_key: ApiKey::new("bench"),
@@ -111,6 +122,8 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
     let mut per_stage: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
     let mut extra: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
     let mut failed = 0;
+    let cpu0 = cpu_seconds();
+    let wall0 = Instant::now();
     for k in 0..n {
         let q = &scene.queries[k % scene.queries.len()];
         let class = q.target_label.as_str();
@@ -183,6 +196,14 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
                     .or_default()
                     .push(s["inputs"]["frames"].as_f64().unwrap_or(0.0));
                 extra
+                    .entry("stitching.tiles_cached")
+                    .or_default()
+                    .push(s["outputs"]["tiles_cached"].as_f64().unwrap_or(0.0));
+                extra
+                    .entry("stitching.grids_cached")
+                    .or_default()
+                    .push(s["outputs"]["grids_cached"].as_f64().unwrap_or(0.0));
+                extra
                     .entry("stitching.from_previews")
                     .or_default()
                     .push(s["outputs"]["from_previews"].as_f64().unwrap_or(0.0));
@@ -211,6 +232,7 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
             }
         }
     }
+    let (cpu, wall) = (cpu_seconds() - cpu0, wall0.elapsed().as_secs_f64());
     let stat = |v: &[f64]| {
         let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
         let max = v.iter().cloned().fold(f64::NAN, f64::max);
@@ -218,10 +240,28 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
     };
     let (mean, max) = stat(&non_vlm);
     println!("agent/{}x{}: {} queries ok, {failed} failed; non-VLM ms per query: mean {mean:.1}, max {max:.1} (target <= 300)", color.0, color.1, non_vlm.len());
+    println!(
+        "  queries' wall {wall:.2} s, process CPU {cpu:.2} s ({:.0} ms CPU per query)",
+        cpu * 1e3 / n.max(1) as f64
+    );
     for (k, v) in per_stage.iter().chain(extra.iter()) {
         let (m, x) = stat(v);
         println!("  {k:<28} mean {m:>8.1}  max {x:>8.1}");
     }
     app.stop().await;
     Ok(())
+}
+
+/// User + system CPU seconds of this process so far (Linux: /proc/self/stat; 0 elsewhere).
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the command name, which is in parentheses and may hold spaces.
+    let rest = stat.rsplit_once(')').map_or("", |r| r.1);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // utime and stime are fields 14 and 15 of the line: indices 11 and 12 after the name
+    // (field 3 is index 0); the kernel counts them in USER_HZ, 100 on Linux.
+    (ticks(11) + ticks(12)) / 100.0
 }

@@ -127,6 +127,8 @@ pub struct Config {
     pub workers: usize,
     /// Bound of the decoded-scene cache shared by the jobs (depth maps and cameras), MB.
     pub scene_cache_mb: u64,
+    /// Bound of the resized grid tiles kept between queries, MB (0: none).
+    pub tile_cache_mb: u64,
     /// Memory bound for running jobs, MB (0: none). A job starts only when its estimate
     /// (`job_memory_mb`) fits beside the others, the scene cache and a base; else it waits
     /// queued. One job always runs.
@@ -196,6 +198,7 @@ impl Default for Config {
             job_retention_days: 7.0,
             workers: 2,
             scene_cache_mb: crate::jobs::scene_cache::DEFAULT_SCENE_CACHE_MB,
+            tile_cache_mb: crate::stitch::DEFAULT_TILE_CACHE_MB,
             max_memory_mb: 0,
             job_memory_mb: crate::jobs::worker::DEFAULT_JOB_MEMORY_MB,
             max_attempts: 3,

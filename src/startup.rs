@@ -91,6 +91,7 @@ impl Application {
             storage,
             WorkerConfig {
                 scene_cache_bytes: cfg.scene_cache_mb << 20,
+                tile_cache_bytes: cfg.tile_cache_mb << 20,
                 max_memory_mb: cfg.max_memory_mb,
                 job_memory_mb: cfg.job_memory_mb,
                 max_concurrent_indexing: cfg.max_concurrent_indexing,
@@ -324,7 +325,8 @@ fn build_vlm_grounder(
         cfg.detector.clone(),
         segmenter,
         cfg.agent.clone(),
-    ))
+    )
+    .with_tile_cache(cfg.tile_cache_mb.saturating_mul(1 << 20)))
 }
 
 /// `grounder serve`.

@@ -106,6 +106,8 @@ pub struct VlmGrounder {
     /// core: jobs beyond that wait between stages instead of all holding their decoded
     /// frames and point clouds at once while sharing the same cores (docs/memory.md).
     compute: tokio::sync::Semaphore,
+    /// Resized grid tiles kept between queries (`tile_cache_mb`).
+    pub tiles: Arc<crate::stitch::TileCache>,
 }
 
 impl VlmGrounder {
@@ -129,7 +131,14 @@ impl VlmGrounder {
             compute: tokio::sync::Semaphore::new(
                 std::thread::available_parallelism().map_or(2, |n| n.get()),
             ),
+            tiles: Arc::new(crate::stitch::TileCache::default()),
         }
+    }
+
+    /// Keep at most `bytes` of resized grid tiles between queries (0: none).
+    pub fn with_tile_cache(mut self, bytes: u64) -> Self {
+        self.tiles = Arc::new(crate::stitch::TileCache::new(bytes));
+        self
     }
 
     /// Wait for a compute slot (see `compute`); a cancel while waiting ends the job.

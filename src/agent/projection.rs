@@ -9,7 +9,7 @@
 use image::RgbImage;
 use nalgebra::Point3;
 use serde_json::json;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -27,7 +27,7 @@ use crate::geometry::{
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
-use crate::vision::{SegmentInput, Segmenter};
+use crate::vision::{Detection, SegmentInput, Segmenter};
 
 /// The 3D answer.
 pub struct Projected {
@@ -91,25 +91,29 @@ enum BoxFrom {
     Footprint,
 }
 
-/// The view's cached candidate holding the reprojected anchor `pixels` ([`pick_detection`]),
-/// when candidates are on and were computed at indexing.
-async fn view_candidate(
+/// Every frame's cached candidates, read once per job (one query for all the views), when
+/// candidates are on for the views; frames indexed without them are absent.
+async fn view_candidates(
     g: &VlmGrounder,
     ctx: &JobContext,
+) -> Result<BTreeMap<usize, Vec<Detection>>, JobFailure> {
+    if !g.params.candidates.enabled || !g.params.candidates.in_views {
+        return Ok(BTreeMap::new());
+    }
+    ctx.store
+        .scene_candidates(&ctx.scene.id)
+        .await
+        .map_err(|e| JobFailure::new("storage_error", e.to_string()))
+}
+
+/// The view's cached candidate holding the reprojected anchor `pixels` ([`pick_detection`]).
+fn view_candidate(
+    cands: &BTreeMap<usize, Vec<Detection>>,
     idx: usize,
     pixels: &[[u32; 2]],
-) -> Result<Option<[f32; 4]>, JobFailure> {
-    if !g.params.candidates.enabled || !g.params.candidates.in_views {
-        return Ok(None);
-    }
-    let cands = ctx
-        .store
-        .frame_candidates(&ctx.scene.id, idx)
-        .await
-        .map_err(|e| JobFailure::new("storage_error", e.to_string()))?
-        .unwrap_or_default();
-    let boxes: Vec<[f32; 4]> = cands.iter().map(|c| c.bbox).collect();
-    Ok(pick_detection(&boxes, pixels))
+) -> Option<[f32; 4]> {
+    let boxes: Vec<[f32; 4]> = cands.get(&idx)?.iter().map(|c| c.bbox).collect();
+    pick_detection(&boxes, pixels)
 }
 
 /// A view's segmentation: raw mask, the object's points, and the context points around it
@@ -313,6 +317,8 @@ pub async fn run(
             .map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
         None => Default::default(),
     };
+    // Read on the first view without a detection of the class, then shared by the others.
+    let mut cands: Option<BTreeMap<usize, Vec<Detection>>> = None;
     let mut view_boxes = Vec::with_capacity(views.len());
     for v in &views {
         let best = pre.detector_class.as_ref().and_then(|c| {
@@ -329,10 +335,18 @@ pub async fn run(
         // back over a table's edge). Without either, the footprint's own box.
         let (b, from) = match best {
             Some(b) => (b, BoxFrom::Detection),
-            None => match view_candidate(g, ctx, v.index, &v.pixels).await? {
-                Some(b) => (b, BoxFrom::Candidate),
-                None => (v.bbox, BoxFrom::Footprint),
-            },
+            None => {
+                if cands.is_none() {
+                    cands = Some(view_candidates(g, ctx).await?);
+                }
+                match cands
+                    .as_ref()
+                    .and_then(|c| view_candidate(c, v.index, &v.pixels))
+                {
+                    Some(b) => (b, BoxFrom::Candidate),
+                    None => (v.bbox, BoxFrom::Footprint),
+                }
+            }
         };
         view_boxes.push((v.index, b, from));
     }

@@ -1,7 +1,8 @@
 //! Stage 3: dynamic stitching of the pre-selected frames into grid images with id labels.
 //! Frames are decoded here in parallel, from the half-size previews indexing stored wherever
-//! a grid shows them at half size or less; the later stages decode the few frames they need
-//! at full size.
+//! a grid shows them at half size or less, through the tile cache that later queries of the
+//! scene share (`stitch::tiles`); the later stages decode the few frames they need at full
+//! size.
 
 use image::RgbImage;
 use serde_json::json;
@@ -11,12 +12,13 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::preselect::Preselection;
-use super::{ms, step, VlmGrounder};
+use super::{step, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::SceneData;
 use crate::stitch::decode::{load_frames, tile_scales, use_previews};
 use crate::stitch::plan::plan;
-use crate::stitch::render::{stitch_with_specs, StitchedImage};
+use crate::stitch::render::StitchedImage;
+use crate::stitch::tiles::{stitch_files, UnreadableFile};
 
 /// The stitched grids.
 pub struct Grids {
@@ -92,18 +94,25 @@ pub async fn run(
             }
         })
         .collect();
-    let decoded = decode_paths(paths).await?;
-    let decode_ms = ms(t);
-    let t_render = Instant::now();
     let ids: Vec<String> = pre.frames.iter().map(|i| format!("{i:05}")).collect();
-    let images = tokio::task::spawn_blocking(move || {
-        let refs: Vec<(String, &RgbImage)> = ids.into_iter().zip(decoded.iter()).collect();
-        stitch_with_specs(&refs, &specs, &opts)
-    })
-    .await
-    .map_err(|e| JobFailure::new("internal", format!("stitching task failed: {e}")))?
-    .map_err(|e| JobFailure::new("stitching_failed", format!("{e:#}")))?;
-    let render_ms = ms(t_render);
+    // Decoded and resized tiles, and whole grids, come from the tile cache when an earlier
+    // query showed the same frame at the same size, or the same grid (the grids are the
+    // same to the byte).
+    let tiles = g.tiles.clone();
+    let (images, stats) =
+        tokio::task::spawn_blocking(move || stitch_files(&paths, &ids, &specs, &opts, &tiles))
+            .await
+            .map_err(|e| JobFailure::new("internal", format!("stitching task failed: {e}")))?
+            .map_err(|e| {
+                if e.downcast_ref::<UnreadableFile>().is_some() {
+                    JobFailure::new(
+                        "storage_error",
+                        format!("cannot decode a stored frame: {e:#}"),
+                    )
+                } else {
+                    JobFailure::new("stitching_failed", format!("{e:#}"))
+                }
+            })?;
     let mut urls = Vec::with_capacity(images.len());
     for (k, img) in images.iter().enumerate() {
         urls.push(
@@ -118,7 +127,7 @@ pub async fn run(
         .map(|(im, url)| json!({"url": url, "rows": im.spec.rows, "cols": im.spec.cols, "image_ids": im.image_ids, "width": im.width, "height": im.height, "jpeg_bytes": im.jpeg.len()}))
         .collect();
     let previews = from_preview.iter().filter(|&&p| p).count();
-    step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": decode_ms, "render_ms": render_ms, "from_previews": previews}), t).await;
+    step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": stats.decode_ms, "render_ms": stats.render_ms, "tiles_cached": stats.tiles_cached, "grids_cached": stats.grids_cached, "from_previews": previews}), t).await;
     Ok(Grids { images, urls })
 }
 

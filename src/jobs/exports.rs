@@ -8,14 +8,16 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use super::JobSystem;
-use crate::geometry::export::{encode_ply, frame_points, voxel_downsample_colored};
-use crate::scene::SceneData;
+use crate::geometry::export::{encode_ply, frame_points, voxel_downsample_colored, ColoredPoint};
+use crate::scene::{FrameData, SceneData};
 use crate::vision::Detection;
 
 /// Voxel sizes (m) the points export accepts.
 pub const VOXEL_RANGE: std::ops::RangeInclusive<f64> = 0.01..=1.0;
 /// Voxel size (m) when none is asked for.
 pub const DEFAULT_VOXEL: f64 = 0.05;
+/// Longest time in all the background points export waits for running jobs.
+pub const WARM_PATIENCE: std::time::Duration = std::time::Duration::from_secs(60);
 /// Depth samples taken per frame at most (the stride between sampled pixels follows).
 const SAMPLES_PER_FRAME: u64 = 40_000;
 
@@ -87,28 +89,24 @@ pub fn voxel_mm(voxel: Option<f64>) -> Result<u32, ExportError> {
     Ok((v * 1000.0).round() as u32)
 }
 
-/// The scene's points as binary PLY, voxel `mm` millimetres (blocking; decodes previews).
-pub fn compute_scene_points(scene: &SceneData, mm: u32) -> Vec<u8> {
-    use rayon::prelude::*;
-    let voxel = mm as f64 / 1000.0;
-    let per_frame: Vec<_> = scene
-        .usable_frames()
-        .collect::<Vec<_>>()
-        .par_iter()
-        .map(|f| {
-            let (w, h) = (f.camera.color.width as u64, f.camera.color.height as u64);
-            let stride = ((w * h) as f64 / SAMPLES_PER_FRAME as f64).sqrt().ceil() as u32;
-            let preview = f.preview_path();
-            let path = if preview.is_file() {
-                preview
-            } else {
-                f.color_path.clone()
-            };
-            let color = image::open(&path).ok().map(|i| i.into_rgb8());
-            let pts = frame_points(&f.camera, &f.depth, color.as_ref(), stride.max(1));
-            voxel_downsample_colored(&pts, voxel)
-        })
-        .collect();
+/// One frame's sampled, coloured points, downsampled to `voxel` m (blocking; decodes the
+/// frame's preview, or its colour image when it has none).
+fn frame_cloud(f: &FrameData, voxel: f64) -> Vec<ColoredPoint> {
+    let (w, h) = (f.camera.color.width as u64, f.camera.color.height as u64);
+    let stride = ((w * h) as f64 / SAMPLES_PER_FRAME as f64).sqrt().ceil() as u32;
+    let preview = f.preview_path();
+    let path = if preview.is_file() {
+        preview
+    } else {
+        f.color_path.clone()
+    };
+    let color = image::open(&path).ok().map(|i| i.into_rgb8());
+    let pts = frame_points(&f.camera, &f.depth, color.as_ref(), stride.max(1));
+    voxel_downsample_colored(&pts, voxel)
+}
+
+/// The PLY of the frames' clouds (in frame order), downsampled once more as a whole.
+fn points_ply(scene: &SceneData, per_frame: Vec<Vec<ColoredPoint>>, voxel: f64) -> Vec<u8> {
     let all: Vec<_> = per_frame.into_iter().flatten().collect();
     let pts = voxel_downsample_colored(&all, voxel);
     let frame = if scene.axis_align.is_some() {
@@ -123,6 +121,58 @@ pub fn compute_scene_points(scene: &SceneData, mm: u32) -> Vec<u8> {
             format!("frame: {frame}"),
         ],
     )
+}
+
+/// The scene's points as binary PLY, voxel `mm` millimetres (blocking; decodes previews;
+/// frames in parallel: what a viewer waiting for it gets).
+pub fn compute_scene_points(scene: &SceneData, mm: u32) -> Vec<u8> {
+    use rayon::prelude::*;
+    let voxel = mm as f64 / 1000.0;
+    let per_frame: Vec<_> = scene
+        .usable_frames()
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|f| frame_cloud(f, voxel))
+        .collect();
+    points_ply(scene, per_frame, voxel)
+}
+
+/// Frames a background export computes between two looks at the jobs.
+const PACED_CHUNK: usize = 4;
+
+/// [`compute_scene_points`] for background work: the same bytes, computed on one thread
+/// [`PACED_CHUNK`] frames at a time, awaiting `gate` before each chunk (it returns when
+/// the export may go on, e.g. once no job is running), so a query never shares the cores
+/// with more than one chunk of it.
+pub async fn compute_scene_points_paced<G, F>(
+    scene: Arc<SceneData>,
+    mm: u32,
+    mut gate: G,
+) -> Result<Vec<u8>, ExportError>
+where
+    G: FnMut() -> F,
+    F: std::future::Future<Output = ()>,
+{
+    let voxel = mm as f64 / 1000.0;
+    let usable: Vec<usize> = scene.usable_frames().map(|f| f.idx).collect();
+    let mut per_frame = Vec::with_capacity(usable.len());
+    for chunk in usable.chunks(PACED_CHUNK) {
+        gate().await;
+        let (sc, chunk) = (scene.clone(), chunk.to_vec());
+        let clouds = tokio::task::spawn_blocking(move || {
+            chunk
+                .iter()
+                .map(|&i| frame_cloud(&sc.frames[i], voxel))
+                .collect::<Vec<_>>()
+        })
+        .await
+        .map_err(|e| ExportError::Internal(format!("points task failed: {e}")))?;
+        per_frame.extend(clouds);
+    }
+    gate().await;
+    tokio::task::spawn_blocking(move || points_ply(&scene, per_frame, voxel))
+        .await
+        .map_err(|e| ExportError::Internal(format!("points task failed: {e}")))
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
@@ -244,16 +294,76 @@ impl JobSystem {
     }
 
     /// Compute the default points export in the background (after indexing), so the first
-    /// viewer of the scene does not wait for it.
+    /// viewer of the scene does not wait for it. It yields to the queries: it runs on one
+    /// thread, a few frames at a time, and goes on only while no job is running in this
+    /// process nor queued on a ready scene ([`Self::jobs_idle`]); after
+    /// [`WARM_PATIENCE`] of waiting in all it stops waiting (still one thread, one chunk at
+    /// a time), so a busy service still gets the export.
     pub fn warm_scene_points(&self, scene_id: &str) {
         let (me, id) = (self.clone(), scene_id.to_string());
         tokio::spawn(async move {
-            if let Ok(mm) = voxel_mm(None) {
-                if let Err(e) = me.scene_points(&id, mm).await {
-                    tracing::warn!(scene = %id, "cannot prepare the scene's points: {e}");
-                }
+            if let Err(e) = me.warm_points(&id).await {
+                tracing::warn!(scene = %id, "cannot prepare the scene's points: {e}");
             }
         });
+    }
+
+    async fn warm_points(&self, scene_id: &str) -> Result<(), ExportError> {
+        let mm = voxel_mm(None)?;
+        let key = format!("{scene_id}/{mm}");
+        let file = self.points_file(scene_id, mm);
+        if self.points_cache().get(&key).is_some() || file.is_file() {
+            return Ok(());
+        }
+        let pin = self
+            .acquire_scene(scene_id)
+            .await
+            .map_err(|f| ExportError::Internal(f.detail))?;
+        let scene = self.scene_data(scene_id).await?;
+        let waited = Arc::new(Mutex::new(std::time::Duration::ZERO));
+        let me = self.clone();
+        let bytes = compute_scene_points_paced(scene, mm, || {
+            let (me, waited) = (me.clone(), waited.clone());
+            async move { me.wait_for_idle_jobs(&waited).await }
+        })
+        .await?;
+        let b = Arc::new(bytes);
+        let (f, w) = (file.clone(), b.clone());
+        let stored = tokio::task::spawn_blocking(move || write_atomic(&f, &w)).await;
+        if !matches!(stored, Ok(Ok(()))) {
+            tracing::warn!("cannot store {}", file.display());
+        }
+        if let Err(e) = self.storage().sync_scene(scene_id).await {
+            tracing::warn!(scene = %scene_id, "cannot upload the scene's points: {e}");
+        }
+        drop(pin);
+        self.points_cache().put(key, b);
+        Ok(())
+    }
+
+    /// No job is running in this process and none is queued on a ready scene (it would
+    /// start at once). A store error counts as busy.
+    pub async fn jobs_idle(&self) -> bool {
+        if !self.running().is_empty() {
+            return false;
+        }
+        !self.store.has_runnable_jobs().await.unwrap_or(true)
+    }
+
+    /// Wait while jobs run (see [`Self::jobs_idle`]), adding the wait to `waited`; return
+    /// at once once `waited` reached [`WARM_PATIENCE`] or the service is stopping.
+    async fn wait_for_idle_jobs(&self, waited: &Mutex<std::time::Duration>) {
+        let step = std::time::Duration::from_millis(50);
+        loop {
+            let total = waited.lock().map(|w| *w).unwrap_or(WARM_PATIENCE);
+            if total >= WARM_PATIENCE || self.stopping().is_cancelled() || self.jobs_idle().await {
+                return;
+            }
+            tokio::time::sleep(step).await;
+            if let Ok(mut w) = waited.lock() {
+                *w += step;
+            }
+        }
     }
 
     async fn scene_data(&self, scene_id: &str) -> Result<Arc<SceneData>, ExportError> {

@@ -199,6 +199,10 @@ impl RunningJobs {
             g.remove(id);
         }
     }
+    /// No job is running (a poisoned lock counts as running).
+    pub fn is_empty(&self) -> bool {
+        self.inner.lock().map(|g| g.is_empty()).unwrap_or(false)
+    }
     pub fn contains(&self, id: &str) -> bool {
         self.inner
             .lock()

@@ -21,6 +21,8 @@ pub struct WorkerConfig {
     pub data_dir: PathBuf,
     /// Bound of the decoded-scene cache in bytes.
     pub scene_cache_bytes: u64,
+    /// Bound of the agent's tile cache in bytes (counted under `max_memory_mb`).
+    pub tile_cache_bytes: u64,
     /// Memory the jobs may use, in MB (0: no bound; see [`MemoryGate`]).
     pub max_memory_mb: u64,
     /// Memory one running job is counted for, in MB.
@@ -39,6 +41,7 @@ impl WorkerConfig {
             workers,
             data_dir,
             scene_cache_bytes: super::scene_cache::DEFAULT_SCENE_CACHE_MB << 20,
+            tile_cache_bytes: crate::stitch::DEFAULT_TILE_CACHE_MB << 20,
             max_memory_mb: 0,
             job_memory_mb: DEFAULT_JOB_MEMORY_MB,
             max_concurrent_indexing: 2,
@@ -71,7 +74,8 @@ impl MemoryGate {
                 per_job: 0,
             };
         }
-        let cache_mb = cfg.scene_cache_bytes.div_ceil(1 << 20);
+        let cache_mb =
+            (cfg.scene_cache_bytes.saturating_add(cfg.tile_cache_bytes)).div_ceil(1 << 20);
         let budget = cfg.max_memory_mb.saturating_sub(cache_mb + BASE_MEMORY_MB);
         let per_job = cfg.job_memory_mb.clamp(1, u32::MAX as u64 / 2);
         // One job always fits, so a bound below one job's need serialises instead of stalling.

@@ -12,6 +12,7 @@ pub mod label;
 pub mod plan;
 pub mod render;
 pub mod retrieval;
+pub mod tiles;
 
 pub use annotate::{annotate_instances, AnnotateOptions};
 pub use decode::{
@@ -23,3 +24,4 @@ pub use render::{
     resize_to_limit_with, stitch_all, stitch_with_specs, ResizeFilter, StitchOptions,
     StitchedImage, TilePlacement,
 };
+pub use tiles::{stitch_files, StitchStats, TileCache, DEFAULT_TILE_CACHE_MB};

@@ -36,7 +36,7 @@ pub struct StitchOptions {
 }
 
 /// Resampling filter used when scaling tiles and images.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ResizeFilter {
     /// Lanczos, 3 lobes: sharpest, slowest (reference behaviour).
@@ -49,7 +49,7 @@ pub enum ResizeFilter {
 }
 
 impl ResizeFilter {
-    fn options(self) -> ResizeOptions {
+    pub(crate) fn options(self) -> ResizeOptions {
         let f = match self {
             ResizeFilter::Lanczos3 => FilterType::Lanczos3,
             ResizeFilter::CatmullRom => FilterType::CatmullRom,
@@ -190,41 +190,15 @@ pub fn render_grid_with_placements(
     spec: &GridSpec,
     opts: &StitchOptions,
 ) -> Result<(RgbImage, Vec<TilePlacement>)> {
-    if tiles.is_empty() {
-        bail!("cannot stitch an empty grid");
-    }
-    if spec.rows == 0 || spec.cols == 0 {
-        bail!("grid layout {}x{} has no cells", spec.rows, spec.cols);
-    }
-    if tiles.len() > spec.capacity() as usize {
-        bail!(
-            "{} frames do not fit a {}x{} grid",
-            tiles.len(),
-            spec.rows,
-            spec.cols
-        );
-    }
-    let cell_w = tiles.iter().map(|t| t.1.width()).max().unwrap_or(0);
-    let cell_h = tiles.iter().map(|t| t.1.height()).max().unwrap_or(0);
-    if tiles.iter().any(|t| t.1.width() == 0 || t.1.height() == 0) {
-        bail!("cannot stitch an empty frame");
-    }
-    let full_w = u64::from(cell_w) * u64::from(spec.cols);
-    let full_h = u64::from(cell_h) * u64::from(spec.rows);
-    let s = grid_scale(cell_w, cell_h, spec, opts);
-    let out_w = ((full_w as f64 * s).round() as u32).max(1);
-    let out_h = ((full_h as f64 * s).round() as u32).max(1);
+    let dims: Vec<(u32, u32)> = tiles.iter().map(|t| t.1.dimensions()).collect();
+    check_grid(&dims, spec)?;
+    let (out_w, out_h, rects) = grid_layout(&dims, spec, opts);
     let mut out = RgbImage::from_pixel(out_w, out_h, image::Rgb(opts.background));
 
     let mut resizer = Resizer::new();
     let resize_opts = opts.resize_filter.options();
     let mut placements = Vec::with_capacity(tiles.len());
-    for (i, (id, tile)) in tiles.iter().enumerate() {
-        let (r, c) = (i as u32 / spec.cols, i as u32 % spec.cols);
-        let x = ((f64::from(c) * f64::from(cell_w) * s).round() as u32).min(out_w - 1);
-        let y = ((f64::from(r) * f64::from(cell_h) * s).round() as u32).min(out_h - 1);
-        let w = ((f64::from(tile.width()) * s).round() as u32).clamp(1, out_w - x);
-        let h = ((f64::from(tile.height()) * s).round() as u32).clamp(1, out_h - y);
+    for ((id, tile), [x, y, w, h]) in tiles.iter().zip(rects) {
         {
             let mut dst =
                 CroppedImageMut::new(&mut out, x, y, w, h).context("tile does not fit the grid")?;
@@ -240,22 +214,74 @@ pub fn render_grid_with_placements(
             h,
         });
     }
-    for p in &placements {
+    draw_labels(&mut out, &placements, opts);
+    Ok((out, placements))
+}
+
+/// Tiles of sizes `dims` can be drawn in a `spec` grid: some, none empty, and they fit.
+pub(crate) fn check_grid(dims: &[(u32, u32)], spec: &GridSpec) -> Result<()> {
+    if dims.is_empty() {
+        bail!("cannot stitch an empty grid");
+    }
+    if spec.rows == 0 || spec.cols == 0 {
+        bail!("grid layout {}x{} has no cells", spec.rows, spec.cols);
+    }
+    if dims.len() > spec.capacity() as usize {
+        bail!(
+            "{} frames do not fit a {}x{} grid",
+            dims.len(),
+            spec.rows,
+            spec.cols
+        );
+    }
+    if dims.iter().any(|d| d.0 == 0 || d.1 == 0) {
+        bail!("cannot stitch an empty frame");
+    }
+    Ok(())
+}
+
+/// The size of a `spec` grid of tiles of sizes `dims` (row-major, cells as large as the
+/// largest tile, scaled by [`grid_scale`]) and each tile's place in it, `[x, y, w, h]`.
+/// `dims` must be non-empty, without zero sides, and fit the grid.
+pub fn grid_layout(
+    dims: &[(u32, u32)],
+    spec: &GridSpec,
+    opts: &StitchOptions,
+) -> (u32, u32, Vec<[u32; 4]>) {
+    let cell_w = dims.iter().map(|d| d.0).max().unwrap_or(0);
+    let cell_h = dims.iter().map(|d| d.1).max().unwrap_or(0);
+    let cols = spec.cols.max(1);
+    let full_w = u64::from(cell_w) * u64::from(cols);
+    let full_h = u64::from(cell_h) * u64::from(spec.rows);
+    let s = grid_scale(cell_w, cell_h, spec, opts);
+    let out_w = ((full_w as f64 * s).round() as u32).max(1);
+    let out_h = ((full_h as f64 * s).round() as u32).max(1);
+    let rects = dims
+        .iter()
+        .enumerate()
+        .map(|(i, &(tw, th))| {
+            let (r, c) = (i as u32 / cols, i as u32 % cols);
+            let x = ((f64::from(c) * f64::from(cell_w) * s).round() as u32).min(out_w - 1);
+            let y = ((f64::from(r) * f64::from(cell_h) * s).round() as u32).min(out_h - 1);
+            let w = ((f64::from(tw) * s).round() as u32).clamp(1, out_w - x);
+            let h = ((f64::from(th) * s).round() as u32).clamp(1, out_h - y);
+            [x, y, w, h]
+        })
+        .collect();
+    (out_w, out_h, rects)
+}
+
+/// Draw each placed tile's id at its top-left corner.
+pub fn draw_labels(out: &mut RgbImage, placements: &[TilePlacement], opts: &StitchOptions) {
+    for p in placements {
         let style = LabelStyle {
             text: opts.label_color,
             background: Some(opts.label_background),
             ink_height: (opts.label_height_frac * p.h as f32).max(4.0),
         };
         let m = ((opts.label_margin_frac * p.h as f32).round() as i32).max(1);
-        draw_label(
-            &mut out,
-            &p.image_id,
-            p.x as i32 + m,
-            p.y as i32 + m,
-            &style,
-        );
+        draw_label(out, &p.image_id, p.x as i32 + m, p.y as i32 + m, &style);
     }
-    Ok((out, placements))
 }
 
 /// Encode an RGB image as baseline JPEG at `quality` (1..=100).

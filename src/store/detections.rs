@@ -134,6 +134,36 @@ impl Store {
         Ok(Some(out))
     }
 
+    /// Every frame's cached candidates in one query, each frame's largest first (as
+    /// [`Self::frame_candidates`]); frames indexed with candidates and none found map to an
+    /// empty list, frames indexed without them are absent.
+    pub async fn scene_candidates(
+        &self,
+        scene_id: &str,
+    ) -> Result<BTreeMap<usize, Vec<Detection>>, StoreError> {
+        let rows = sqlx::query(&self.sql("SELECT frame_idx, label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? ORDER BY frame_idx, rowid"))
+            .bind(scene_id)
+            .bind(CANDIDATES_KEY)
+            .fetch_all(&self.pool)
+            .await?;
+        let mut out: BTreeMap<usize, Vec<Detection>> = BTreeMap::new();
+        for r in rows {
+            let idx: i64 = r.try_get("frame_idx")?;
+            let list = out.entry(idx as usize).or_default();
+            let label: String = r.try_get("label")?;
+            if label == CANDIDATES_NONE {
+                continue;
+            }
+            let f = |k: &str| r.try_get::<f64, _>(k).map(|v| v as f32);
+            list.push(Detection {
+                label,
+                score: f("score")?,
+                bbox: [f("x1")?, f("y1")?, f("x2")?, f("y2")?],
+            });
+        }
+        Ok(out)
+    }
+
     /// Reset indexing progress (before (re-)indexing with `detector`).
     pub async fn reset_index(
         &self,

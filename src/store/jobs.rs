@@ -236,6 +236,14 @@ impl Store {
         self.get_job(id).await
     }
 
+    /// A job is queued on a ready scene (a worker will take it as soon as one is free).
+    pub async fn has_runnable_jobs(&self) -> Result<bool, StoreError> {
+        let row: Option<i64> = sqlx::query_scalar(&self.sql("SELECT 1 FROM jobs j JOIN scenes s ON s.id = j.scene_id WHERE j.status = 'queued' AND s.status = 'ready' LIMIT 1"))
+            .fetch_optional(&self.pool)
+            .await?;
+        Ok(row.is_some())
+    }
+
     pub async fn count_jobs_by_status(&self) -> Result<Vec<(String, i64)>, StoreError> {
         let rows = sqlx::query(&self.sql("SELECT status, COUNT(*) AS n FROM jobs GROUP BY status"))
             .fetch_all(&self.pool)

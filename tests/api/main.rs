@@ -33,6 +33,7 @@ mod scenes;
 mod storage;
 mod storage_timeouts;
 mod viewer;
+mod warm_points;
 mod webhooks;
 
 mod agent_fixture;
