@@ -28,6 +28,61 @@ pub fn decode_image(bytes: &[u8]) -> Result<RgbImage> {
         .into_rgb8())
 }
 
+/// Decode JPEG `bytes` for a tile of `want` = (width, height) pixels: at the smallest DCT
+/// scale (1/8, 1/4 or 1/2) whose output is still at least `want` in both dimensions, which
+/// skips most of the inverse DCT, upsampling and colour conversion of a frame that is then
+/// resized to a fraction of its size anyway. The caller resizes the result to `want`
+/// exactly, as it would the full frame. Anything else (no reduced scale fits, a format the
+/// scaled decoder does not give as 8-bit RGB or grey, an error or a panic in it) is decoded
+/// at full size by [`decode_image`], whose result the tiles had before.
+pub fn decode_at_least(bytes: &[u8], want: (u32, u32)) -> Result<RgbImage> {
+    if bytes.starts_with(&[0xFF, 0xD8]) {
+        // The scaled decoder is a second, independent JPEG parser of uploaded files: a
+        // panic in it is a reason to use the full decoder, not to fail the job.
+        let scaled = std::panic::catch_unwind(|| scaled_jpeg(bytes, want));
+        if let Ok(Some(img)) = scaled {
+            return Ok(img);
+        }
+    }
+    decode_image(bytes)
+}
+
+/// Size of a `full` side decoded at `eighths` / 8 (the scaled IDCT rounds up).
+fn scaled_side(full: u32, eighths: u32) -> u32 {
+    (full * eighths).div_ceil(8)
+}
+
+/// [`decode_at_least`]'s reduced-scale decode; `None` where it does not apply or fails.
+fn scaled_jpeg(bytes: &[u8], want: (u32, u32)) -> Option<RgbImage> {
+    let mut dec = jpeg_decoder::Decoder::new(bytes);
+    // The full size first (a request larger than any image selects the full scale).
+    let (fw, fh) = dec.scale(u16::MAX, u16::MAX).ok()?;
+    let (fw, fh) = (u32::from(fw), u32::from(fh));
+    let eighths = [1, 2, 4]
+        .into_iter()
+        .find(|&e| scaled_side(fw, e) >= want.0 && scaled_side(fh, e) >= want.1)?;
+    let (sw, sh) = (scaled_side(fw, eighths), scaled_side(fh, eighths));
+    // `scale` takes the smallest scale that reaches the request in either dimension: asking
+    // for exactly the chosen scale's size selects it; anything else is refused below.
+    let got = dec
+        .scale(u16::try_from(sw).ok()?, u16::try_from(sh).ok()?)
+        .ok()?;
+    if (u32::from(got.0), u32::from(got.1)) != (sw, sh) {
+        return None;
+    }
+    let px = dec.decode().ok()?;
+    let n = sw as usize * sh as usize;
+    if px.len() == 3 * n {
+        RgbImage::from_raw(sw, sh, px)
+    } else if px.len() == n {
+        // Grey (a 16-bit or CMYK image has other lengths and goes to the full decoder).
+        let grey = image::GrayImage::from_raw(sw, sh, px)?;
+        Some(image::DynamicImage::ImageLuma8(grey).into_rgb8())
+    } else {
+        None
+    }
+}
+
 /// Read and decode image files in parallel.
 pub fn load_frames<P: AsRef<Path> + Sync>(paths: &[P]) -> Result<Vec<RgbImage>> {
     paths
@@ -97,6 +152,119 @@ mod tests {
             p.get_pixel(5, 60),
             p.get_pixel(155, 60)
         );
+    }
+
+    /// A smooth picture (gradients and a wave of about 60 pixels), JPEG-encoded as asked.
+    /// Hard edges would make the comparison below one of two downscalers at 1/8 (an 8x8
+    /// block's mean against Lanczos3), not of the decoders.
+    fn jpeg(w: u32, h: u32, progressive: bool, sampling: jpeg_encoder::SamplingFactor) -> Vec<u8> {
+        let img = RgbImage::from_fn(w, h, |x, y| {
+            let r = (x * 255 / w.max(1)) as u8;
+            let g = (y * 255 / h.max(1)) as u8;
+            let b = 128.0 + 60.0 * (f64::from(x + y) / 10.0).sin();
+            image::Rgb([r, g, b as u8])
+        });
+        let mut buf = Vec::new();
+        let mut enc = jpeg_encoder::Encoder::new(&mut buf, 90);
+        enc.set_progressive(progressive);
+        enc.set_sampling_factor(sampling);
+        enc.encode(
+            img.as_raw(),
+            w as u16,
+            h as u16,
+            jpeg_encoder::ColorType::Rgb,
+        )
+        .unwrap();
+        buf
+    }
+
+    /// Mean absolute difference per channel between `a` and `b` resized to `a`'s size.
+    fn diff_to(a: &RgbImage, b: &RgbImage) -> f64 {
+        let mut r = RgbImage::new(a.width(), a.height());
+        fast_image_resize::Resizer::new()
+            .resize(
+                b,
+                &mut r,
+                &super::super::render::ResizeFilter::Lanczos3.options(),
+            )
+            .unwrap();
+        let sum: u64 = a
+            .as_raw()
+            .iter()
+            .zip(r.as_raw())
+            .map(|(&x, &y)| u64::from(x.abs_diff(y)))
+            .sum();
+        sum as f64 / a.as_raw().len() as f64
+    }
+
+    #[test]
+    fn scaled_decode_is_the_smallest_dct_scale_at_least_the_tile() {
+        use jpeg_encoder::SamplingFactor::{F_1_1, F_2_2};
+        // (frame, tile wanted, size decoded): odd sizes round up; a tile one pixel over a
+        // scale takes the next one; one over half the frame decodes it whole.
+        let cases = [
+            ((160, 120), (75, 56), (80, 60)),
+            ((160, 120), (80, 60), (80, 60)),
+            ((160, 120), (81, 56), (160, 120)),
+            ((160, 120), (20, 15), (20, 15)),
+            ((160, 120), (21, 10), (40, 30)),
+            ((121, 97), (30, 20), (31, 25)),
+            ((121, 97), (16, 13), (16, 13)),
+            ((648, 484), (305, 228), (324, 242)),
+            ((7, 5), (1, 1), (1, 1)),
+        ];
+        for progressive in [false, true] {
+            for sampling in [F_2_2, F_1_1] {
+                for ((w, h), want, got) in cases {
+                    let bytes = jpeg(w, h, progressive, sampling);
+                    let full = decode_image(&bytes).unwrap();
+                    let img = decode_at_least(&bytes, want).unwrap();
+                    let what = format!("{w}x{h} for {want:?}, progressive {progressive}");
+                    assert_eq!(img.dimensions(), got, "{what}");
+                    assert!(img.width() >= want.0 && img.height() >= want.1, "{what}");
+                    // The same picture as the full decode brought to that size (compared at
+                    // tile sizes of 30 pixels or more: smaller outputs of these small test
+                    // frames are mostly border, and the 4:2:0 chroma at 1/8 is 2 pixels).
+                    if got.0 >= 30 {
+                        let d = diff_to(&img, &full);
+                        assert!(d < 8.0, "{what}: mean difference {d}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn what_the_scaled_decoder_does_not_take_is_decoded_whole() {
+        // Grey JPEG: decoded at the reduced scale too, as RGB.
+        let grey = image::GrayImage::from_fn(64, 48, |x, _| image::Luma([(x * 4) as u8]));
+        let mut bytes = Vec::new();
+        jpeg_encoder::Encoder::new(&mut bytes, 90)
+            .encode(grey.as_raw(), 64, 48, jpeg_encoder::ColorType::Luma)
+            .unwrap();
+        let img = decode_at_least(&bytes, (30, 20)).unwrap();
+        assert_eq!(img.dimensions(), (32, 24));
+        let p = img.get_pixel(20, 10);
+        assert!(
+            p[0] == p[1] && p[1] == p[2] && p[0].abs_diff(160) < 12,
+            "{p:?}"
+        );
+        // PNG: the full decoder.
+        let rgb = RgbImage::from_pixel(40, 30, image::Rgb([1, 2, 3]));
+        let mut png = Vec::new();
+        image::DynamicImage::ImageRgb8(rgb.clone())
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        assert_eq!(decode_at_least(&png, (5, 5)).unwrap(), rgb);
+        // A truncated JPEG (cut mid-scan) gives an image or an error, never a panic; a JPEG
+        // header over garbage is an error.
+        let good = jpeg(160, 120, false, jpeg_encoder::SamplingFactor::F_2_2);
+        if let Ok(img) = decode_at_least(&good[..good.len() / 2], (20, 15)) {
+            assert!(img.width() >= 20 && img.height() >= 15);
+        }
+        let mut junk = vec![0xFF, 0xD8, 0xFF, 0xC0, 0x00, 0x11, 0x08];
+        junk.extend((0..200u32).map(|i| (i * 37 % 251) as u8));
+        assert!(decode_at_least(&junk, (10, 10)).is_err());
     }
 
     #[test]
