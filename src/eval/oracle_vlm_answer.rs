@@ -263,11 +263,25 @@ fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
     }
 }
 
+/// Which frames show `target`: those that do by the scorer's rule ([`SceneTruth::shows`]);
+/// when none does (an object too small for every view), those holding a pixel of it.
+fn showing(scene: &SceneTruth, target: u32) -> impl Fn(u32) -> bool + '_ {
+    let by_rule = (0..scene.frames.len() as u32).any(|i| scene.shows(i, target));
+    move |i| {
+        if by_rule {
+            scene.shows(i, target)
+        } else {
+            scene.pixels(i, target) > 0
+        }
+    }
+}
+
 /// No offered frame shows `target`, while some frame of the scene does (so the VLM can
-/// be shown it once the other frames are offered).
+/// be shown it once the other frames are offered). "Shows" is [`best_frame`]'s rule, so the
+/// oracle never names a frame that was not offered where it could have said so.
 pub fn not_offered(scene: &SceneTruth, target: u32, offered: &[u32]) -> bool {
-    offered.iter().all(|&i| !scene.shows(i, target))
-        && (0..scene.frames.len() as u32).any(|i| scene.shows(i, target))
+    let shows = showing(scene, target);
+    offered.iter().all(|&i| !shows(i)) && (0..scene.frames.len() as u32).any(shows)
 }
 
 /// The best image id: among the offered (else all) frames, not rejected, the one that
@@ -286,19 +300,11 @@ pub fn best_frame(
         .copied()
         .filter(|i| !rejected.contains(i))
         .collect();
-    // Frames that show it by the scorer's rule; when none does (an object too small for
-    // every view), any frame holding a pixel of it.
-    let shown_somewhere = (0..scene.frames.len() as u32).any(|i| scene.shows(i, target));
+    let shows = showing(scene, target);
     let pick = |ids: &[u32]| {
         ids.iter()
             .copied()
-            .filter(|&i| {
-                if shown_somewhere {
-                    scene.shows(i, target)
-                } else {
-                    scene.pixels(i, target) > 0
-                }
-            })
+            .filter(|&i| shows(i))
             .max_by_key(|&i| (scene.visibility(i, target), std::cmp::Reverse(i)))
     };
     // Not visible in any offered frame: answer the best frame overall and let feedback work.
@@ -523,13 +529,21 @@ mod tests {
         assert!(not_offered(&scene, 7, &[0]));
         assert!(!not_offered(&scene, 7, &[0, 1]));
         assert_eq!(best_frame(&scene, 7, Some(&[0]), &[]), Some(1));
-        // An object no frame shows by the rule: the frame holding a pixel of it is named,
-        // and "not offered" is never said (another offer would not show it either).
+        // An object no frame shows by the rule: the frames holding a pixel of it show it.
+        // One that was not offered is not named: "not offered" is said, and the other
+        // frames are offered (naming it ended such jobs `retry_limit_reached`).
         let tiny = SceneTruth {
             frames: vec![frame((w, h), None), frame((w, h), sliver)],
         };
-        assert!(!not_offered(&tiny, 7, &[0]));
+        assert!(not_offered(&tiny, 7, &[0]));
+        assert!(!not_offered(&tiny, 7, &[0, 1]));
         assert_eq!(best_frame(&tiny, 7, None, &[]), Some(1));
+        assert_eq!(best_frame(&tiny, 7, Some(&[0, 1]), &[]), Some(1));
+        // Not in any frame at all: nothing to offer, so never "not offered".
+        let absent = SceneTruth {
+            frames: vec![frame((w, h), None)],
+        };
+        assert!(!not_offered(&absent, 7, &[0]));
     }
 
     #[test]
