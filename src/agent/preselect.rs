@@ -38,6 +38,16 @@ pub fn evenly_sampled(items: &[usize], n: usize) -> Vec<usize> {
     (0..n).map(|i| items[i * items.len() / n]).collect()
 }
 
+/// The frames' file names and five-digit image ids, for the `preselection` trace step.
+fn trace_ids<'a>(ctx: &'a JobContext, frames: &[usize]) -> (Vec<&'a str>, Vec<String>) {
+    let names = frames
+        .iter()
+        .map(|&i| ctx.scene.frames[i].name.as_str())
+        .collect();
+    let image_ids = frames.iter().map(|i| format!("{i:05}")).collect();
+    (names, image_ids)
+}
+
 /// After the VLM saw the target in none of `previous`'s frames, which the detector chose
 /// (a detector's false detections of the class in other frames, or its misses of the
 /// target itself, leave the target out): the usable frames not offered yet, evenly sampled
@@ -68,11 +78,7 @@ pub async fn widened(
         previous.frames.len(),
         previous.detector_class.as_deref().unwrap_or_default()
     );
-    let names: Vec<&str> = frames
-        .iter()
-        .map(|&i| ctx.scene.frames[i].name.as_str())
-        .collect();
-    let image_ids: Vec<String> = frames.iter().map(|i| format!("{i:05}")).collect();
+    let (names, image_ids) = trace_ids(ctx, &frames);
     step(
         ctx,
         "preselection",
@@ -171,11 +177,7 @@ pub async fn run(
             }
         }
     };
-    let names: Vec<&str> = frames
-        .iter()
-        .map(|&i| ctx.scene.frames[i].name.as_str())
-        .collect();
-    let image_ids: Vec<String> = frames.iter().map(|i| format!("{i:05}")).collect();
+    let (names, image_ids) = trace_ids(ctx, &frames);
     step(
         ctx,
         "preselection",

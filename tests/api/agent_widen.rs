@@ -43,8 +43,9 @@ fn image_ids(step: &Value) -> Vec<String> {
         .collect()
 }
 
-#[tokio::test]
-async fn no_offered_frame_shows_the_target_so_the_frames_the_detector_left_out_are_offered() {
+/// A fixture whose cached detections put `class` only in `fake`, a frame without it;
+/// `good` shows exactly one instance of it: (fixture, class, good, fake).
+async fn detector_misleads() -> (Fixture, String, usize, usize) {
     let f = Fixture::start(vec![], 5_000).await;
     let (class, good) = class_with_single(&f);
     let fake = *f
@@ -52,6 +53,12 @@ async fn no_offered_frame_shows_the_target_so_the_frames_the_detector_left_out_a
         .first()
         .expect("a frame without the class");
     detections_only_in(&f, &class, fake).await;
+    (f, class, good, fake)
+}
+
+#[tokio::test]
+async fn no_offered_frame_shows_the_target_so_the_frames_the_detector_left_out_are_offered() {
+    let (f, class, good, fake) = detector_misleads().await;
     f.vlm
         .script_push(vec![analysis(&class), none_here(), pick_image(good as u32)]);
 
@@ -95,13 +102,7 @@ async fn no_offered_frame_shows_the_target_so_the_frames_the_detector_left_out_a
 
 #[tokio::test]
 async fn none_after_widening_ends_target_not_found() {
-    let f = Fixture::start(vec![], 5_000).await;
-    let (class, _) = class_with_single(&f);
-    let fake = *f
-        .frames_with(&class, 0)
-        .first()
-        .expect("a frame without the class");
-    detections_only_in(&f, &class, fake).await;
+    let (f, class, _, _) = detector_misleads().await;
     f.vlm
         .script_push(vec![analysis(&class), none_here(), none_here()]);
 
