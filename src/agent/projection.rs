@@ -22,8 +22,8 @@ use crate::geometry::ensemble::{
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
-    cut_wall_leaks, fill_depth, snap_planar_to_wall, Aabb, GeometryParams, Mask, RoomLayout,
-    WallCut,
+    cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb, GeometryParams, Mask,
+    RoomLayout, WallCut,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -317,6 +317,16 @@ pub async fn run(
             .map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
         None => Default::default(),
     };
+    // The views' candidates may widen the object only beyond what the anchor saw in part.
+    let cp = &g.params.candidates;
+    let anchor_partial = partial_view(
+        &anchor_mask,
+        &scene.frames[choice.frame_idx].camera,
+        &scene.frames[choice.frame_idx].depth,
+        &cp.partial,
+    );
+    let views_take_candidates =
+        cp.enabled && cp.in_views && (!cp.in_views_partial_only || anchor_partial.partial);
     // Read on the first view without a detection of the class, then shared by the others.
     let mut cands: Option<BTreeMap<usize, Vec<Detection>>> = None;
     let mut view_boxes = Vec::with_capacity(views.len());
@@ -335,6 +345,7 @@ pub async fn run(
         // back over a table's edge). Without either, the footprint's own box.
         let (b, from) = match best {
             Some(b) => (b, BoxFrom::Detection),
+            None if !views_take_candidates => (v.bbox, BoxFrom::Footprint),
             None => {
                 if cands.is_none() {
                     cands = Some(view_candidates(g, ctx).await?);
@@ -503,7 +514,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

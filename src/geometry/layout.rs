@@ -475,7 +475,8 @@ const MAX_BINS: f64 = 100_000.0;
 const FACING: f64 = 0.8;
 
 impl RoomLayout {
-    fn turn(&self, x: f64, y: f64) -> (f64, f64) {
+    /// (u, v) of a horizontal position or direction: x, y turned by the room's angle.
+    pub(crate) fn turn(&self, x: f64, y: f64) -> (f64, f64) {
         let (s, c) = self.angle_deg.to_radians().sin_cos();
         (c * x + s * y, -s * x + c * y)
     }

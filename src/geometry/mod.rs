@@ -24,6 +24,7 @@ pub mod layout;
 pub mod mask;
 pub mod morph;
 pub mod params;
+pub mod partial;
 pub mod planar;
 pub mod projection;
 pub mod support;
@@ -31,6 +32,7 @@ pub mod support;
 pub(crate) mod test_grid;
 #[cfg(test)]
 pub(crate) mod test_scene;
+pub mod wall_sweep;
 pub mod walls;
 
 pub use boxes::Aabb;
@@ -49,6 +51,7 @@ pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
+pub use partial::{partial_view, PartialParams, PartialView};
 pub use planar::{snap_planar_to_wall, PlanarSnap};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,
@@ -56,4 +59,5 @@ pub use projection::{
 pub use support::{
     context_points, extend_to_support, median_point, SupportExtension, SupportParams,
 };
+pub use wall_sweep::{sweep_wall, wall_moved, WallSweep, WallSweepParams};
 pub use walls::{cut_wall_leaks, WallCut};

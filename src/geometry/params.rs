@@ -74,6 +74,8 @@ pub struct GeometryParams {
     pub depth_fill: super::DepthFillParams,
     /// The room's box, for rays no frame measured (ours; see `layout.rs`).
     pub layout: super::LayoutParams,
+    /// Placing a wall no reading reached by the object on it (ours; see `wall_sweep.rs`).
+    pub wall_sweep: super::WallSweepParams,
     /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
     pub support: super::SupportParams,
 }
@@ -105,6 +107,7 @@ impl Default for GeometryParams {
             consensus: super::ConsensusParams::default(),
             depth_fill: super::DepthFillParams::default(),
             layout: super::LayoutParams::default(),
+            wall_sweep: super::WallSweepParams::default(),
             support: super::SupportParams::default(),
         }
     }

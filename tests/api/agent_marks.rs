@@ -51,13 +51,15 @@ async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
 
 /// The ensemble views of a marks job take their boxes from their own cached candidates (the
 /// region holding the reprojected object), not only from the reprojected points; with
-/// `in_views` off they do not.
+/// `in_views` off they do not, and with `in_views_partial_only` (the default) only when
+/// the chosen view's mask shows a part of the object (the trace's `anchor_partial`).
 #[tokio::test]
 async fn ensemble_views_take_the_candidate_that_holds_the_object() {
-    for in_views in [true, false] {
+    for (in_views, partial_only) in [(true, false), (false, false), (true, true)] {
         let f = Fixture::start_with_config(5_000, "centernet", |c| {
             c.agent.candidates.enabled = true;
             c.agent.candidates.in_views = in_views;
+            c.agent.candidates.in_views_partial_only = partial_only;
         })
         .await;
         f.vlm.script_push(vec![
@@ -101,7 +103,12 @@ async fn ensemble_views_take_the_candidate_that_holds_the_object() {
                 assert_eq!(v["box"], v["footprint"], "{v:#}");
             }
         }
-        if in_views {
+        let out = &proj[0]["outputs"];
+        let partial = out["anchor_partial"]["partial"].as_bool();
+        assert!(partial.is_some(), "{out:#}");
+        let take = in_views && (!partial_only || partial == Some(true));
+        assert_eq!(out["views_take_candidates"], take, "{out:#}");
+        if take {
             assert!(from_candidates > 0, "no view used a candidate: {views:#?}");
         } else {
             assert_eq!(from_candidates, 0, "{views:#?}");

@@ -32,7 +32,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
 use super::depth_seg::same_hue;
-use crate::geometry::{DepthMap, FrameCamera, LayoutParams, RoomLayout};
+use crate::geometry::{DepthMap, FrameCamera, LayoutParams, PartialParams, RoomLayout};
 use grid::{
     build_grid, colour_split, dominant_colour, opened_components, pairs, regions, to_candidate,
     Cell, Sets,
@@ -87,6 +87,13 @@ pub struct CandidateParams {
     /// detections), instead of the box of the reprojected points alone: a view that sees
     /// the whole of an object the chosen view saw in part then segments all of it.
     pub in_views: bool,
+    /// ...only when the chosen view's mask shows it saw a part (`geometry::partial`: it
+    /// reaches the frame's edge, a nearer surface hides part of its outline, or much of it
+    /// has no depth). A view that saw the whole object needs no completing, and a
+    /// class-agnostic region can hold the object together with what it stands on.
+    pub in_views_partial_only: bool,
+    /// What counts as a part (see `in_views_partial_only`).
+    pub partial: PartialParams,
 }
 
 impl Default for CandidateParams {
@@ -110,6 +117,8 @@ impl Default for CandidateParams {
             beside_detections: true,
             box_fallback: true,
             in_views: true,
+            in_views_partial_only: true,
+            partial: PartialParams::default(),
         }
     }
 }

@@ -1,0 +1,268 @@
+//! Did a view see the whole object, or a part of it? (ours, not the paper's)
+//!
+//! A mask is evidence of a part only when something in the image says so:
+//! - **border**: the mask reaches the edge of the frame, so the object may go on beyond it;
+//! - **occluded**: along part of its outline, the surface just outside the mask is much
+//!   nearer the camera than the mask's own edge (a table's edge in front of a chair's
+//!   seat): the object may go on behind that surface;
+//! - **no depth**: many of the mask's pixels have no depth reading (a black or glossy
+//!   object), so its points cover only part of it.
+//!
+//! The agent uses it to decide whether the other views may widen the object beyond what
+//! the chosen view segmented (see `agent::projection`).
+
+use serde::{Deserialize, Serialize};
+
+use super::{DepthMap, FrameCamera, Mask};
+
+/// Thresholds of [`partial_view`] (file section `[agent.candidates.partial]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PartialParams {
+    /// A mask pixel this close to the frame's edge, as a fraction of the image's width,
+    /// touches the border.
+    pub border_frac: f64,
+    /// Depth pixels between a mask's edge pixel and the pixel outside it that is compared.
+    pub reach: u32,
+    /// A surface nearer than the mask's edge by more than this (m)...
+    pub occluder_step: f64,
+    /// ...plus this much per metre of depth hides part of the object.
+    pub occluder_per_m: f64,
+    /// Share of the outline (edge pixels with a reading) that must be hidden so.
+    pub min_occluded: f64,
+    /// Share of the mask's pixels without a depth reading that makes it a part.
+    pub min_missing: f64,
+}
+
+impl Default for PartialParams {
+    fn default() -> Self {
+        Self {
+            border_frac: 0.01,
+            reach: 2,
+            occluder_step: 0.15,
+            occluder_per_m: 0.03,
+            min_occluded: 0.1,
+            min_missing: 0.25,
+        }
+    }
+}
+
+/// What [`partial_view`] found (kept in the job's trace).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PartialView {
+    /// The mask reaches the frame's edge.
+    pub border: bool,
+    /// Share of the outline hidden by a nearer surface.
+    pub occluded: f64,
+    /// Share of the mask's pixels without a depth reading.
+    pub missing: f64,
+    /// Any of the three says the view saw a part.
+    pub partial: bool,
+}
+
+/// The evidence that `mask` (colour pixels of `camera`) holds only part of its object,
+/// read from the frame's own `depth` (not a completed one: a missing reading is what is
+/// looked for). An empty mask is not partial.
+pub fn partial_view(
+    mask: &Mask,
+    camera: &FrameCamera,
+    depth: &DepthMap,
+    params: &PartialParams,
+) -> PartialView {
+    let (w, h) = (mask.width, mask.height);
+    let margin = (params.border_frac * f64::from(w)).ceil().max(0.0) as u32;
+    let (mut pixels, mut missing) = (0usize, 0usize);
+    let mut border = false;
+    // Depth pixels on the mask's outline, and which of them look onto a nearer surface.
+    let (wd, hd) = (depth.width, depth.height);
+    let mut in_mask = vec![false; wd as usize * hd as usize];
+    for y in 0..h {
+        for x in 0..w {
+            if !mask.get(x, y) {
+                continue;
+            }
+            pixels += 1;
+            border |= x < margin || y < margin || x + margin >= w || y + margin >= h;
+            let (dx, dy) = camera.depth_pixel_for_color(f64::from(x), f64::from(y));
+            if dx < wd && dy < hd {
+                in_mask[(dy * wd + dx) as usize] = true;
+                missing += usize::from(depth.get(dx, dy) == 0);
+            } else {
+                missing += 1;
+            }
+        }
+    }
+    if pixels == 0 {
+        return PartialView {
+            border: false,
+            occluded: 0.0,
+            missing: 0.0,
+            partial: false,
+        };
+    }
+    let inside = |x: i64, y: i64| {
+        x >= 0
+            && y >= 0
+            && x < i64::from(wd)
+            && y < i64::from(hd)
+            && in_mask[(y * i64::from(wd) + x) as usize]
+    };
+    let reach = i64::from(params.reach.max(1));
+    let (mut outline, mut hidden) = (0usize, 0usize);
+    for y in 0..i64::from(hd) {
+        for x in 0..i64::from(wd) {
+            if !inside(x, y) {
+                continue;
+            }
+            let d = depth.get(x as u32, y as u32);
+            if d == 0 {
+                continue;
+            }
+            let dirs = [(1, 0), (-1, 0), (0, 1), (0, -1)];
+            let open: Vec<(i64, i64)> = dirs
+                .into_iter()
+                .filter(|(ox, oy)| !inside(x + ox, y + oy))
+                .collect();
+            if open.is_empty() {
+                continue;
+            }
+            outline += 1;
+            let z = f64::from(d) / 1000.0;
+            let step = params.occluder_step + params.occluder_per_m * z;
+            let nearer = open.iter().any(|(ox, oy)| {
+                let (qx, qy) = (x + ox * reach, y + oy * reach);
+                if qx < 0 || qy < 0 || qx >= i64::from(wd) || qy >= i64::from(hd) || inside(qx, qy)
+                {
+                    return false;
+                }
+                let q = depth.get(qx as u32, qy as u32);
+                q != 0 && z - f64::from(q) / 1000.0 > step
+            });
+            hidden += usize::from(nearer);
+        }
+    }
+    let occluded = if outline == 0 {
+        0.0
+    } else {
+        hidden as f64 / outline as f64
+    };
+    let missing = missing as f64 / pixels as f64;
+    PartialView {
+        border,
+        occluded,
+        missing,
+        partial: border || occluded >= params.min_occluded || missing >= params.min_missing,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Intrinsics;
+    use nalgebra::Matrix4;
+
+    fn camera(w: u32, h: u32) -> FrameCamera {
+        let k = Intrinsics {
+            fx: 100.0,
+            fy: 100.0,
+            cx: f64::from(w) / 2.0,
+            cy: f64::from(h) / 2.0,
+            width: w,
+            height: h,
+        };
+        FrameCamera {
+            color: k,
+            depth: None,
+            depth_size: (w, h),
+            pose: Matrix4::identity(),
+            align: Matrix4::identity(),
+        }
+    }
+
+    /// A 100x80 frame: wall at 3 m, an object at 2 m in the box [30, 20, 70, 60).
+    fn scene() -> (Mask, DepthMap) {
+        let (w, h) = (100, 80);
+        let mut mask = Mask::new(w, h);
+        let mut d = vec![3000u16; (w * h) as usize];
+        for y in 20..60 {
+            for x in 30..70 {
+                mask.set(x, y, true);
+                d[(y * w + x) as usize] = 2000;
+            }
+        }
+        (mask, DepthMap::new(w, h, d))
+    }
+
+    #[test]
+    fn a_whole_object_before_a_wall_is_not_partial() {
+        let (mask, depth) = scene();
+        let p = partial_view(&mask, &camera(100, 80), &depth, &PartialParams::default());
+        assert!(!p.partial && !p.border, "{p:?}");
+        assert_eq!((p.occluded, p.missing), (0.0, 0.0));
+    }
+
+    #[test]
+    fn an_object_behind_a_nearer_edge_is_partial() {
+        // A table's edge at 1.2 m covers the rows below the object's visible part.
+        let (mut mask, mut depth) = scene();
+        let DepthMap { width: w, .. } = depth;
+        let mut d = depth.data.to_vec();
+        for y in 45..80 {
+            for x in 0..100 {
+                d[(y * w + x) as usize] = 1200;
+                mask.set(x, y, false);
+            }
+        }
+        depth = DepthMap::new(w, 80, d);
+        let p = partial_view(&mask, &camera(100, 80), &depth, &PartialParams::default());
+        assert!(p.partial && !p.border && p.occluded > 0.2, "{p:?}");
+        // A surface only slightly nearer (the top of what the object stands on) hides nothing.
+        let mut d = depth.data.to_vec();
+        for v in d.iter_mut().filter(|v| **v == 1200) {
+            *v = 1950;
+        }
+        let p = partial_view(
+            &mask,
+            &camera(100, 80),
+            &DepthMap::new(w, 80, d),
+            &PartialParams::default(),
+        );
+        assert!(!p.partial && p.occluded == 0.0, "{p:?}");
+    }
+
+    #[test]
+    fn an_object_at_the_frame_edge_or_without_depth_is_partial() {
+        let (mut mask, depth) = scene();
+        for y in 20..60 {
+            mask.set(0, y, true);
+        }
+        let p = partial_view(&mask, &camera(100, 80), &depth, &PartialParams::default());
+        assert!(p.partial && p.border, "{p:?}");
+        // Half of the object has no reading.
+        let (mask, depth) = scene();
+        let mut d = depth.data.to_vec();
+        for y in 20..60 {
+            for x in 30..50 {
+                d[(y * 100 + x) as usize] = 0;
+            }
+        }
+        let p = partial_view(
+            &mask,
+            &camera(100, 80),
+            &DepthMap::new(100, 80, d),
+            &PartialParams::default(),
+        );
+        assert!(
+            p.partial && !p.border && (p.missing - 0.5).abs() < 1e-9,
+            "{p:?}"
+        );
+        // An empty mask says nothing.
+        let p = partial_view(
+            &Mask::new(100, 80),
+            &camera(100, 80),
+            &depth,
+            &PartialParams::default(),
+        );
+        assert!(!p.partial, "{p:?}");
+    }
+}
