@@ -15,6 +15,7 @@ pub mod query_analysis;
 pub mod stitching;
 pub mod vlm_box;
 pub mod vlm_log;
+pub mod wall_sweep;
 
 use futures::future::BoxFuture;
 use serde::{Deserialize, Serialize};

@@ -227,6 +227,32 @@ fn complete_depth(
     }
 }
 
+/// The chosen view's box segmented, its empty depth pixels completed first (with `layout`
+/// for an object flat against a wall), and what completion did.
+async fn segment_anchor(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    choice: &Choice,
+    layout: Option<Arc<RoomLayout>>,
+    cut_walls: bool,
+) -> Result<(ViewCloud, serde_json::Value), JobFailure> {
+    let sc = ctx.scene.clone();
+    let anchor = sc.frames[choice.frame_idx].clone();
+    let (seg, params, image, bbox) = (
+        g.segmenter.clone(),
+        g.params.geometry.clone(),
+        choice.image.clone(),
+        choice.bbox,
+    );
+    tokio::task::spawn_blocking(move || {
+        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, layout.as_deref(), &params);
+        segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls).map(|c| (c, fill))
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
+    .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))
+}
+
 /// The anchor's image comes with `choice`; the ensemble views are decoded here.
 pub async fn run(
     g: &VlmGrounder,
@@ -238,42 +264,39 @@ pub async fn run(
 ) -> Result<Projected, JobFailure> {
     let t = Instant::now();
     let scene = ctx.scene.clone();
-    let anchor = scene.frames[choice.frame_idx].clone();
-    let (seg, params, image, bbox) = (
-        g.segmenter.clone(),
-        g.params.geometry.clone(),
-        choice.image.clone(),
-        choice.bbox,
-    );
     let cut_walls = !g.params.geometry.support.hangs(target_class)
         && !g.params.geometry.support.is_flat(target_class);
-    let (sc, lay) = (scene.clone(), layout.clone());
-    let (cloud, fill) = tokio::task::spawn_blocking(move || {
-        // The anchor's empty depth pixels in the box, completed from the other frames.
-        let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, lay.as_deref(), &params);
-        segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls).map(|c| (c, fill))
-    })
-    .await
-    .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
-    .map_err(|e| JobFailure::new("segmentation_failed", format!("{e:#}")))?;
+    let (mut cloud, mut fill) = segment_anchor(g, ctx, choice, layout.clone(), cut_walls).await?;
+    // No frame measured the object (its points were ended on the room's box): the other
+    // views are found, and their depth completed, with the room too.
+    let placed = |fill: &serde_json::Value| {
+        fill.get("placed")
+            .and_then(serde_json::Value::as_u64)
+            .is_some_and(|n| n > 0)
+    };
+    let mut layout = layout;
+    let mut sweep = serde_json::Value::Null;
+    if let Some(room) = layout.clone().filter(|_| placed(&fill)) {
+        // ...and a wall no reading reached is first placed by the object's colours.
+        let refined = super::wall_sweep::refine(g, ctx, choice, &cloud.points, &room).await?;
+        sweep = json!(refined.sweep);
+        if let Some(moved) = refined.room {
+            layout = Some(moved);
+            (cloud, fill) = segment_anchor(g, ctx, choice, layout.clone(), cut_walls).await?;
+        }
+    }
     let ViewCloud {
         mask: anchor_mask,
         points: anchor_pts,
         context: anchor_ctx,
         wall_cuts,
     } = cloud;
-    // No frame measured the object (its points were ended on the room's box): the other
-    // views are found, and their depth completed, with the room too.
-    let placed = fill
-        .get("placed")
-        .and_then(serde_json::Value::as_u64)
-        .is_some_and(|n| n > 0);
-    let view_room = layout.clone().filter(|_| placed);
+    let view_room = layout.clone().filter(|_| placed(&fill));
     step(
         ctx,
         "segmentation",
         json!({"image_id": format!("{:05}", choice.frame_idx), "box": choice.bbox, "segmenter": g.segmenter.name()}),
-        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": anchor_mask.width, "height": anchor_mask.height, "rle": mask_rle(&anchor_mask)}, "pixels": anchor_mask.count(), "points": anchor_pts.len(), "wall_cuts": wall_cuts, "depth_fill": fill}),
+        json!({"image_id": format!("{:05}", choice.frame_idx), "frame": scene.frames[choice.frame_idx].name, "mask": {"width": anchor_mask.width, "height": anchor_mask.height, "rle": mask_rle(&anchor_mask)}, "pixels": anchor_mask.count(), "points": anchor_pts.len(), "wall_cuts": wall_cuts, "depth_fill": fill, "wall_sweep": sweep}),
         t,
     )
     .await;

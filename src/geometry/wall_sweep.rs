@@ -36,6 +36,8 @@ pub struct WallSweepParams {
     pub grow: f64,
     /// Frames whose view of the patch must be compared.
     pub min_views: usize,
+    /// At most this many frames are decoded and compared (spread over the scan).
+    pub max_views: usize,
     /// A frame is compared only when this share of the samples falls inside it.
     pub min_inside: f64,
     /// The best shift must beat the unmoved wall's mean correlation by this much.
@@ -53,6 +55,7 @@ impl Default for WallSweepParams {
             samples: 24,
             grow: 0.25,
             min_views: 2,
+            max_views: 12,
             min_inside: 0.8,
             min_gain: 0.1,
             min_contrast: 4.0,
