@@ -92,7 +92,7 @@ pub fn keep_largest_components(mask: &Mask, keep: usize) -> Mask {
 }
 
 /// Pixel bounds [x0, y0, x1, y1) of the set pixels grown by `margin` (clamped), if any.
-fn bounds(mask: &Mask, margin: u32) -> Option<[u32; 4]> {
+pub(crate) fn bounds(mask: &Mask, margin: u32) -> Option<[u32; 4]> {
     let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
     for y in 0..mask.height {
         let row = &mask.data[(y * mask.width) as usize..((y + 1) * mask.width) as usize];

@@ -13,6 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::morph::bounds;
 use super::{DepthMap, FrameCamera, Mask};
 
 /// Thresholds of [`partial_view`] (file section `[agent.candidates.partial]`).
@@ -76,8 +77,20 @@ pub fn partial_view(
     // Depth pixels on the mask's outline, and which of them look onto a nearer surface.
     let (wd, hd) = (depth.width, depth.height);
     let mut in_mask = vec![false; wd as usize * hd as usize];
-    for y in 0..h {
-        for x in 0..w {
+    // Only the mask's bounding box holds mask pixels, and only the depth pixels they read
+    // can be on its outline.
+    let Some([bx0, by0, bx1, by1]) = bounds(mask, 0) else {
+        return PartialView {
+            border: false,
+            occluded: 0.0,
+            missing: 0.0,
+            partial: false,
+        };
+    };
+    let corner = |x: u32, y: u32| camera.depth_pixel_for_color(f64::from(x), f64::from(y));
+    let ((dx0, dy0), (dx1, dy1)) = (corner(bx0, by0), corner(bx1 - 1, by1 - 1));
+    for y in by0..by1 {
+        for x in bx0..bx1 {
             if !mask.get(x, y) {
                 continue;
             }
@@ -92,14 +105,6 @@ pub fn partial_view(
             }
         }
     }
-    if pixels == 0 {
-        return PartialView {
-            border: false,
-            occluded: 0.0,
-            missing: 0.0,
-            partial: false,
-        };
-    }
     let inside = |x: i64, y: i64| {
         x >= 0
             && y >= 0
@@ -109,8 +114,8 @@ pub fn partial_view(
     };
     let reach = i64::from(params.reach.max(1));
     let (mut outline, mut hidden) = (0usize, 0usize);
-    for y in 0..i64::from(hd) {
-        for x in 0..i64::from(wd) {
+    for y in i64::from(dy0)..=i64::from(dy1) {
+        for x in i64::from(dx0)..=i64::from(dx1) {
             if !inside(x, y) {
                 continue;
             }
@@ -118,18 +123,17 @@ pub fn partial_view(
             if d == 0 {
                 continue;
             }
-            let dirs = [(1, 0), (-1, 0), (0, 1), (0, -1)];
-            let open: Vec<(i64, i64)> = dirs
+            let mut open = [(1, 0), (-1, 0), (0, 1), (0, -1)]
                 .into_iter()
                 .filter(|(ox, oy)| !inside(x + ox, y + oy))
-                .collect();
-            if open.is_empty() {
+                .peekable();
+            if open.peek().is_none() {
                 continue;
             }
             outline += 1;
             let z = f64::from(d) / 1000.0;
             let step = params.occluder_step + params.occluder_per_m * z;
-            let nearer = open.iter().any(|(ox, oy)| {
+            let nearer = open.any(|(ox, oy)| {
                 let (qx, qy) = (x + ox * reach, y + oy * reach);
                 if qx < 0 || qy < 0 || qx >= i64::from(wd) || qy >= i64::from(hd) || inside(qx, qy)
                 {
