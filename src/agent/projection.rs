@@ -291,7 +291,12 @@ pub async fn run(
         context: anchor_ctx,
         wall_cuts,
     } = cloud;
-    let view_room = layout.clone().filter(|_| placed(&fill));
+    // The views are found, and their empty pixels completed, with the room when the chosen
+    // view's pixels were put on it, or when frames that saw the object beyond their range
+    // may join (the room is only there for objects flat against a wall).
+    let view_room = layout
+        .clone()
+        .filter(|_| g.params.geometry.layout.views_beyond_range || placed(&fill));
     step(
         ctx,
         "segmentation",

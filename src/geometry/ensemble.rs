@@ -560,3 +560,7 @@ mod tests {
         assert!(find_views(&[], &[], &GeometryParams::default()).is_empty());
     }
 }
+
+#[cfg(test)]
+#[path = "ensemble_room_tests.rs"]
+mod room_tests;

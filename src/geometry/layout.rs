@@ -66,6 +66,12 @@ pub struct LayoutParams {
     /// picture's frame, a door's leaf), matched like the support classes (whole name or
     /// last word, singular or plural).
     pub class_depth: BTreeMap<String, f64>,
+    /// Frames that saw a flat object only beyond their sensor's range (no reading where its
+    /// points lie, and their ray leaves the room there) join its ensemble, their empty
+    /// pixels put on the room's box, also when the chosen view measured it (a window seen
+    /// once from close by and otherwise from across the room). Off: only when the chosen
+    /// view's pixels were themselves put on the room's box.
+    pub views_beyond_range: bool,
 }
 
 impl LayoutParams {
@@ -110,6 +116,7 @@ impl Default for LayoutParams {
             end_frames: 2,
             flat_depth: 0.05,
             class_depth,
+            views_beyond_range: true,
         }
     }
 }
