@@ -2,7 +2,7 @@
 //! object only beyond its sensor's range joins through the room's box.
 
 use super::*;
-use crate::geometry::test_scene::{camera, render};
+use crate::geometry::test_scene::{camera, render, room_slabs};
 use crate::geometry::RoomLayout;
 
 type Slab = ([f64; 3], [f64; 3]);
@@ -10,15 +10,9 @@ type Slab = ([f64; 3], [f64; 3]);
 /// A room [0, 10] x [0, 4] x [0, 2.7] as 10 cm slabs, with a window 1 cm proud of the wall
 /// x = 10 (y 1.4–2.6, z 0.9–1.9).
 fn scene() -> Vec<Slab> {
-    vec![
-        ([-0.1, -0.1, -0.1], [10.1, 4.1, 0.0]),
-        ([-0.1, -0.1, 2.7], [10.1, 4.1, 2.8]),
-        ([-0.1, -0.1, 0.0], [0.0, 4.1, 2.7]),
-        ([10.0, -0.1, 0.0], [10.1, 4.1, 2.7]),
-        ([-0.1, -0.1, 0.0], [10.1, 0.0, 2.7]),
-        ([-0.1, 4.0, 0.0], [10.1, 4.1, 2.7]),
-        ([9.99, 1.4, 0.9], [10.0, 2.6, 1.9]),
-    ]
+    let mut slabs = room_slabs(10.0, 4.0, 2.7);
+    slabs.push(([9.99, 1.4, 0.9], [10.0, 2.6, 1.9]));
+    slabs
 }
 
 fn layout() -> RoomLayout {

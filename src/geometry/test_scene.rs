@@ -63,3 +63,15 @@ pub(crate) fn render(cam: &FrameCamera, boxes: &[([f64; 3], [f64; 3])], range: f
     }
     DepthMap::new(w, h, data)
 }
+
+/// A room [0, w] x [0, d] x [0, h] as six 10 cm slabs (floor, ceiling, four walls).
+pub(crate) fn room_slabs(w: f64, d: f64, h: f64) -> Vec<([f64; 3], [f64; 3])> {
+    vec![
+        ([-0.1, -0.1, -0.1], [w + 0.1, d + 0.1, 0.0]),
+        ([-0.1, -0.1, h], [w + 0.1, d + 0.1, h + 0.1]),
+        ([-0.1, -0.1, 0.0], [0.0, d + 0.1, h]),
+        ([w, -0.1, 0.0], [w + 0.1, d + 0.1, h]),
+        ([-0.1, -0.1, 0.0], [w + 0.1, 0.0, h]),
+        ([-0.1, d, 0.0], [w + 0.1, d + 0.1, h]),
+    ]
+}

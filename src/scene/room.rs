@@ -80,19 +80,12 @@ impl SceneData {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::test_scene::{camera, render};
+    use crate::geometry::test_scene::{camera, render, room_slabs};
     use crate::scene::FrameData;
 
     /// A 4 x 3 x 2.5 m room seen by eight cameras looking outwards from its middle.
     fn room_scene() -> SceneData {
-        let slabs = [
-            ([-0.1, -0.1, -0.1], [4.1, 3.1, 0.0]),
-            ([-0.1, -0.1, 2.5], [4.1, 3.1, 2.6]),
-            ([-0.1, -0.1, 0.0], [0.0, 3.1, 2.5]),
-            ([4.0, -0.1, 0.0], [4.1, 3.1, 2.5]),
-            ([-0.1, -0.1, 0.0], [4.1, 0.0, 2.5]),
-            ([-0.1, 3.0, 0.0], [4.1, 3.1, 2.5]),
-        ];
+        let slabs = room_slabs(4.0, 3.0, 2.5);
         let frames: Vec<FrameData> = (0..8)
             .map(|i| {
                 let a = f64::from(i) * std::f64::consts::TAU / 8.0;

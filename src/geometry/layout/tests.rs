@@ -1,22 +1,16 @@
 use super::*;
-use crate::geometry::test_scene::{camera, render};
+use crate::geometry::test_scene::{camera, render, room_slabs};
 
 type Slab = ([f64; 3], [f64; 3]);
 
 /// A room [0, w] x [0, d] x [0, h] as six 10 cm slabs, and a table in it.
 fn room(w: f64, d: f64, h: f64) -> Vec<Slab> {
-    vec![
-        ([-0.1, -0.1, -0.1], [w + 0.1, d + 0.1, 0.0]),
-        ([-0.1, -0.1, h], [w + 0.1, d + 0.1, h + 0.1]),
-        ([-0.1, -0.1, 0.0], [0.0, d + 0.1, h]),
-        ([w, -0.1, 0.0], [w + 0.1, d + 0.1, h]),
-        ([-0.1, -0.1, 0.0], [w + 0.1, 0.0, h]),
-        ([-0.1, d, 0.0], [w + 0.1, d + 0.1, h]),
-        (
-            [w / 2.0 - 0.5, d / 2.0 - 0.4, 0.0],
-            [w / 2.0 + 0.5, d / 2.0 + 0.4, 0.75],
-        ),
-    ]
+    let mut slabs = room_slabs(w, d, h);
+    slabs.push((
+        [w / 2.0 - 0.5, d / 2.0 - 0.4, 0.0],
+        [w / 2.0 + 0.5, d / 2.0 + 0.4, 0.75],
+    ));
+    slabs
 }
 
 /// Twelve cameras on a circle of radius `r` around (cx, cy) at 1.5 m, looking outwards,
