@@ -510,11 +510,15 @@ pub async fn run(
                     mask_files.push((*i, &c.mask));
                 }
             }
-            let exports =
-                exports::write(&trace, &mask_files, &fusion.kept, &af.camera, &anchor_image);
+            // The single-view box only fills the trace: computed on the other core while
+            // the exports are encoded and written.
+            let (exports, single) = rayon::join(
+                || exports::write(&trace, &mask_files, &fusion.kept, &af.camera, &anchor_image),
+                || single_view_box(&anchor_pts, &params),
+            );
             (
                 fusion,
-                single_view_box(&anchor_pts, &params),
+                single,
                 support,
                 votes,
                 fills,

@@ -260,6 +260,19 @@ pub fn chamfer_distance(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<f64> {
     Some(directional_mean_sq(a, &tb) + directional_mean_sq(b, &ta))
 }
 
+/// [`chamfer_distance`] of `a` to each of `bs`, with `a`'s k-d tree built once (the same
+/// tree [`chamfer_distance`] builds for each pair, so the same values to the bit).
+pub fn chamfer_distances<B: AsRef<[Point3<f64>]>>(a: &[Point3<f64>], bs: &[B]) -> Vec<Option<f64>> {
+    let ta = (!a.is_empty() && bs.iter().any(|b| !b.as_ref().is_empty())).then(|| build_tree(a));
+    bs.iter()
+        .map(|b| {
+            let b = b.as_ref();
+            let ta = ta.as_ref().filter(|_| !b.is_empty())?;
+            Some(directional_mean_sq(a, &build_tree(b)) + directional_mean_sq(b, ta))
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::test_grid::noisy_planes;
@@ -304,6 +317,27 @@ mod tests {
         assert!((c - 1.0).abs() < 1e-12, "{c}");
         assert_eq!(chamfer_distance(&a, &a), Some(0.0));
         assert_eq!(chamfer_distance(&a, &[]), None);
+    }
+
+    #[test]
+    fn chamfer_distances_with_one_tree_equal_the_pairwise_ones_to_the_bit() {
+        let a = noisy_planes(1500, 3);
+        let bs: Vec<Vec<Point3<f64>>> = vec![
+            noisy_planes(900, 4),
+            Vec::new(),
+            noisy_planes(40, 5),
+            a.iter()
+                .map(|q| q + nalgebra::Vector3::new(0.01, -0.02, 0.005))
+                .collect(),
+        ];
+        let bits = |v: Vec<Option<f64>>| -> Vec<Option<u64>> {
+            v.into_iter().map(|d| d.map(f64::to_bits)).collect()
+        };
+        let want: Vec<Option<f64>> = bs.iter().map(|b| chamfer_distance(&a, b)).collect();
+        assert!(want[0].is_some_and(|d| d > 0.0) && want[1].is_none());
+        assert_eq!(bits(chamfer_distances(&a, &bs)), bits(want));
+        assert_eq!(chamfer_distances(&[], &bs), vec![None; 4]);
+        assert!(chamfer_distances::<Vec<Point3<f64>>>(&a, &[]).is_empty());
     }
 
     #[test]

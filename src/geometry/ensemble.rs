@@ -6,7 +6,7 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    chamfer_distance, cluster_keep, outliers_and_neighbours, subsample_even, voxel_downsample,
+    chamfer_distances, cluster_keep, outliers_and_neighbours, subsample_even, voxel_downsample,
 };
 use super::knn::{neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours};
 use super::projection::{project_points, Projected, ProjectionError};
@@ -91,31 +91,35 @@ pub fn find_views_with_room(
                             && (e - q.z).abs() <= params.visibility_tolerance(q.z)
                     })
             };
-            let mut seen = vec![false; w as usize * h as usize];
-            let mut pixels = Vec::new();
+            let mut hits: Vec<[u32; 2]> = Vec::new();
             let (mut x1, mut y1, mut x2, mut y2) = (u32::MAX, u32::MAX, 0u32, 0u32);
-            let mut n = 0usize;
             for q in proj.iter().flatten().filter(|q| q.visible || on_room(q)) {
-                n += 1;
                 let x = (q.u.round().max(0.0) as u32).min(w - 1);
                 let y = (q.v.round().max(0.0) as u32).min(h - 1);
                 x1 = x1.min(x);
                 y1 = y1.min(y);
                 x2 = x2.max(x + 1);
                 y2 = y2.max(y + 1);
-                let i = y as usize * w as usize + x as usize;
-                if !seen[i] {
-                    seen[i] = true;
-                    pixels.push([x, y]);
-                }
+                hits.push([x, y]);
             }
+            let n = hits.len();
             let frac = n as f64 / probe.len() as f64;
-            (n > 0 && frac >= params.min_visible_fraction).then_some(ViewCandidate {
+            if n == 0 || frac < params.min_visible_fraction {
+                return None;
+            }
+            // Distinct pixels in order of first hit, marked over the hits' box only.
+            let bw = (x2 - x1) as usize;
+            let mut seen = vec![false; bw * (y2 - y1) as usize];
+            hits.retain(|&[x, y]| {
+                let i = (y - y1) as usize * bw + (x - x1) as usize;
+                !std::mem::replace(&mut seen[i], true)
+            });
+            Some(ViewCandidate {
                 index: c.index,
                 visible_fraction: frac,
                 visible_points: n,
                 bbox: [x1 as f32, y1 as f32, x2 as f32, y2 as f32],
-                pixels,
+                pixels: hits,
             })
         })
         .collect();
@@ -191,13 +195,22 @@ pub fn chamfer_decisions<P: AsRef<[Point3<f64>]>>(
     others: &[(usize, P)],
     params: &GeometryParams,
 ) -> Vec<ViewDecision> {
+    // No views (the single-view box, an anchor no frame sees): nothing to compare with.
+    if others.is_empty() {
+        return Vec::new();
+    }
     let anchor_ds = voxel_downsample(anchor, params.chamfer_voxel);
+    let views_ds: Vec<Vec<Point3<f64>>> = others
+        .iter()
+        .map(|(_, pts)| voxel_downsample(pts.as_ref(), params.chamfer_voxel))
+        .collect();
+    // The anchor's tree is built once for all the views.
+    let chamfers = chamfer_distances(&anchor_ds, &views_ds);
     others
         .iter()
-        .map(|(index, pts)| {
+        .zip(chamfers)
+        .map(|((index, pts), chamfer)| {
             let pts = pts.as_ref();
-            let chamfer =
-                chamfer_distance(&anchor_ds, &voxel_downsample(pts, params.chamfer_voxel));
             ViewDecision {
                 index: *index,
                 chamfer,
@@ -393,6 +406,10 @@ pub fn mask_points(
         kernel = (kernel / 2) | 1;
     }
 }
+
+#[cfg(test)]
+#[path = "ensemble_views_tests.rs"]
+mod views_tests;
 
 #[cfg(test)]
 mod tests {

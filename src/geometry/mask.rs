@@ -40,10 +40,7 @@ impl Mask {
     /// Mask filled inside the pixel box [x1, x2) x [y1, y2) (clamped).
     pub fn from_box(width: u32, height: u32, b: [f32; 4]) -> Self {
         let mut m = Self::new(width, height);
-        let x1 = b[0].max(0.0).floor() as u32;
-        let y1 = b[1].max(0.0).floor() as u32;
-        let x2 = (b[2].ceil().max(0.0) as u32).min(width);
-        let y2 = (b[3].ceil().max(0.0) as u32).min(height);
+        let [x1, y1, x2, y2] = pixel_box(width, height, b);
         for y in y1..y2 {
             for x in x1..x2 {
                 m.set(x, y, true);
@@ -65,4 +62,16 @@ impl Mask {
             i as f64 / u as f64
         }
     }
+}
+
+/// The pixels [x1, x2) x [y1, y2) that [`Mask::from_box`] fills for box `b` in an image of
+/// `width` x `height`, as [x1, y1, x2, y2]: x2 and y2 clamped to the image; empty when
+/// x1 >= x2 or y1 >= y2 (then x1 or y1 may lie beyond the image).
+pub(crate) fn pixel_box(width: u32, height: u32, b: [f32; 4]) -> [u32; 4] {
+    [
+        b[0].max(0.0).floor() as u32,
+        b[1].max(0.0).floor() as u32,
+        (b[2].ceil().max(0.0) as u32).min(width),
+        (b[3].ceil().max(0.0) as u32).min(height),
+    ]
 }

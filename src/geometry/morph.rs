@@ -62,6 +62,34 @@ pub fn dilate_square(mask: &Mask, kernel: u32) -> Mask {
     square_op(mask, kernel, imageproc::morphology::dilate)
 }
 
+/// [`dilate_square`] of `mask`, only over the pixels `r` = [x0, y0, x1, y1) (clamped to the
+/// mask), as an `r`-sized mask. A pixel's dilation reads the mask within the square's
+/// radius of it, so the crop of `r` grown by the radius and one more pixel (clamped to the
+/// image, outside of which nothing is set in either case) gives the same values in `r`,
+/// without reading, or writing, the rest of the frame.
+pub(crate) fn dilate_square_within(mask: &Mask, kernel: u32, r: [u32; 4]) -> Mask {
+    let x1 = r[2].min(mask.width);
+    let y1 = r[3].min(mask.height);
+    let (x0, y0) = (r[0].min(x1), r[1].min(y1));
+    // The radius `square_op` uses, and one more pixel of margin.
+    let m = if kernel <= 1 {
+        1
+    } else {
+        (kernel / 2).min(254) + 1
+    };
+    let outer = [
+        x0.saturating_sub(m),
+        y0.saturating_sub(m),
+        x1.saturating_add(m).min(mask.width),
+        y1.saturating_add(m).min(mask.height),
+    ];
+    let part = dilate_square(&crop(mask, outer), kernel);
+    crop(
+        &part,
+        [x0 - outer[0], y0 - outer[1], x1 - outer[0], y1 - outer[1]],
+    )
+}
+
 /// Keep the `keep` largest 8-connected components (ties: lower label first); 0 keeps all.
 pub fn keep_largest_components(mask: &Mask, keep: usize) -> Mask {
     if keep == 0 || mask.count() == 0 {

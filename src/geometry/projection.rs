@@ -112,6 +112,19 @@ pub fn backproject_mask(
     depth: &DepthMap,
     opts: BackprojectOptions,
 ) -> Result<Vec<Point3<f64>>, ProjectionError> {
+    backproject_mask_within(mask, [0, 0, mask.width, mask.height], cam, depth, opts)
+}
+
+/// [`backproject_mask`] for a mask whose set pixels all lie in `r` = [x0, y0, x1, y1):
+/// only those pixels are read. The samples are those of the whole frame's stride grid that
+/// fall in `r`, in the same order, so the points are the same.
+pub(crate) fn backproject_mask_within(
+    mask: &Mask,
+    r: [u32; 4],
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    opts: BackprojectOptions,
+) -> Result<Vec<Point3<f64>>, ProjectionError> {
     if (mask.width, mask.height) != (cam.color.width, cam.color.height) {
         return Err(ProjectionError::MaskSize {
             got: (mask.width, mask.height),
@@ -139,9 +152,16 @@ pub fn backproject_mask(
     } else {
         Vec::new()
     };
-    for y in (0..mask.height as usize).step_by(stride) {
+    // The first multiples of the stride at or after the box's corner (the grid of the
+    // whole frame starts at 0).
+    let first = |a: u32| (a as usize).div_ceil(stride) * stride;
+    let (x1, y1) = (
+        (r[2].min(mask.width)) as usize,
+        (r[3].min(mask.height)) as usize,
+    );
+    for y in (first(r[1])..y1).step_by(stride) {
         let row = &mask.data[y * w..(y + 1) * w];
-        for x in (0..w).step_by(stride) {
+        for x in (first(r[0])..x1).step_by(stride) {
             if !row[x] {
                 continue;
             }

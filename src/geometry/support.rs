@@ -29,8 +29,11 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 
 use super::cloud::voxel_downsample;
-use super::morph::dilate_square;
-use super::projection::{backproject_mask, project_points, BackprojectOptions, ProjectionError};
+use super::mask::pixel_box;
+use super::morph::dilate_square_within;
+use super::projection::{
+    backproject_mask_within, project_points, BackprojectOptions, ProjectionError,
+};
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
 
 /// Settings of [`extend_to_support`] and [`context_points`].
@@ -214,19 +217,32 @@ pub fn context_points(
         bbox[2] + g * bw,
         bbox[3] + g * bh,
     ];
-    let mut region = Mask::from_box(mask.width, mask.height, grown);
+    // The grown box less the dilated mask. Only the box's pixels are dilated, cleared and
+    // back-projected: outside it the region is empty (the same points, in the same order,
+    // as from the whole frame).
+    let [x0, y0, x1, y1] = pixel_box(mask.width, mask.height, grown);
+    let (x0, y0) = (x0.min(x1), y0.min(y1));
     let scale = f64::from(mask.width) / 1296.0;
     let clearance = (f64::from(p.mask_clearance) * scale).round() as u32;
-    let blocked = dilate_square(mask, 2 * clearance + 1);
-    for (r, b) in region.data.iter_mut().zip(&blocked.data) {
-        *r &= !*b;
+    let mut region = Mask::new(mask.width, mask.height);
+    if x0 < x1 && y0 < y1 {
+        let blocked = dilate_square_within(mask, 2 * clearance + 1, [x0, y0, x1, y1]);
+        let (w, bw) = (mask.width as usize, (x1 - x0) as usize);
+        for y in y0..y1 {
+            let row = y as usize * w;
+            let dst = &mut region.data[row + x0 as usize..row + x1 as usize];
+            let src = &blocked.data[(y - y0) as usize * bw..(y - y0 + 1) as usize * bw];
+            for (r, b) in dst.iter_mut().zip(src) {
+                *r = !*b;
+            }
+        }
     }
     let opts = BackprojectOptions {
         stride: 1,
         voxel: 0.0,
         one_per_depth_pixel: true,
     };
-    let pts = backproject_mask(&region, cam, depth, opts)?;
+    let pts = backproject_mask_within(&region, [x0, y0, x1, y1], cam, depth, opts)?;
     Ok(voxel_downsample(&pts, p.voxel))
 }
 

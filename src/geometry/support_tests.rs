@@ -299,3 +299,144 @@ fn a_window_above_a_cabinet_does_not_move_down_onto_it() {
     let (e, moved) = extend_to_support(&b, b.center(), &top, &[], !p.support.hangs("window"), &p);
     assert_eq!((e, moved.len()), (b, 0));
 }
+
+/// [`context_points`] as it was before it read the grown box only: the box as a
+/// whole-frame mask, the whole mask dilated, the whole frame back-projected.
+fn context_points_whole_frame(
+    mask: &Mask,
+    bbox: [f32; 4],
+    cam: &FrameCamera,
+    depth: &DepthMap,
+    p: &SupportParams,
+) -> Result<Vec<Point3<f64>>, ProjectionError> {
+    let (bw, bh) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
+    let g = p.context_grow as f32;
+    let grown = [
+        bbox[0] - g * bw,
+        bbox[1] - g * bh,
+        bbox[2] + g * bw,
+        bbox[3] + g * bh,
+    ];
+    let mut region = Mask::from_box(mask.width, mask.height, grown);
+    let scale = f64::from(mask.width) / 1296.0;
+    let clearance = (f64::from(p.mask_clearance) * scale).round() as u32;
+    let blocked = crate::geometry::dilate_square(mask, 2 * clearance + 1);
+    for (r, b) in region.data.iter_mut().zip(&blocked.data) {
+        *r &= !*b;
+    }
+    let opts = BackprojectOptions {
+        stride: 1,
+        voxel: 0.0,
+        one_per_depth_pixel: true,
+    };
+    let pts = crate::geometry::backproject_mask(&region, cam, depth, opts)?;
+    Ok(crate::geometry::cloud::voxel_downsample(&pts, p.voxel))
+}
+
+#[test]
+fn context_points_of_the_grown_box_equal_the_whole_frames_to_the_bit() {
+    // A 259x193 colour / 128x96 depth camera (about ScanNet's 2:1, not exactly) over a
+    // room corner with two boxes; masks of random blobs, boxes anywhere (odd corners for
+    // the stride grid, beyond the frame, empty), clearances up to a 20-pixel radius.
+    let color = Intrinsics {
+        fx: 200.0,
+        fy: 200.0,
+        cx: 129.0,
+        cy: 96.0,
+        width: 259,
+        height: 193,
+    };
+    let cam = FrameCamera {
+        color,
+        depth: None,
+        depth_size: (128, 96),
+        pose: look_at_pose(
+            Point3::new(0.3, 0.2, 1.4),
+            Point3::new(2.0, 2.5, 0.5),
+            Vector3::z(),
+        ),
+        align: Matrix4::identity(),
+    };
+    let depth = crate::geometry::test_scene::render(
+        &cam,
+        &[
+            ([-1.0, -1.0, -0.1], [4.0, 4.0, 0.0]),
+            ([-1.0, 3.0, 0.0], [4.0, 3.1, 3.0]),
+            ([1.2, 1.6, 0.0], [1.8, 2.1, 0.8]),
+            ([0.4, 2.2, 0.3], [0.9, 2.6, 1.1]),
+        ],
+        6.0,
+    );
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut rnd = |n: u32| {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed % u64::from(n.max(1))) as u32
+    };
+    let mut compared = 0;
+    let mut nonempty = 0;
+    for case in 0..60 {
+        let mut mask = Mask::new(259, 193);
+        for _ in 0..1 + rnd(4) {
+            let (cx, cy, r) = (rnd(259), rnd(193), 2 + rnd(40));
+            for y in cy.saturating_sub(r)..(cy + r).min(193) {
+                for x in cx.saturating_sub(r)..(cx + r).min(259) {
+                    if (x as i64 - cx as i64).pow(2) + (y as i64 - cy as i64).pow(2)
+                        < i64::from(r * r) - i64::from(rnd(3 * r))
+                    {
+                        mask.set(x, y, true);
+                    }
+                }
+            }
+        }
+        if case % 10 == 9 {
+            mask = Mask::new(259, 193);
+        }
+        let x0 = rnd(300) as f32 - 30.5;
+        let y0 = rnd(230) as f32 - 20.25;
+        let bbox = match case % 7 {
+            0 => [x0, y0, x0, y0],             // empty before growing
+            1 => [300.0, 10.0, 400.0, 50.0],   // beyond the frame
+            2 => [-80.0, -60.0, 400.0, 300.0], // all of it
+            _ => [
+                x0,
+                y0,
+                x0 + 1.0 + rnd(150) as f32,
+                y0 + 1.0 + rnd(120) as f32,
+            ],
+        };
+        let mut p = SupportParams {
+            mask_clearance: [0, 9, 30, 100, 330][case % 5],
+            ..SupportParams::default()
+        };
+        if case % 4 == 3 {
+            p.context_grow = 0.0;
+        }
+        let want = context_points_whole_frame(&mask, bbox, &cam, &depth, &p);
+        let got = context_points(&mask, bbox, &cam, &depth, &p);
+        let bits = |v: &[Point3<f64>]| -> Vec<[u64; 3]> {
+            v.iter()
+                .map(|q| [q.x.to_bits(), q.y.to_bits(), q.z.to_bits()])
+                .collect()
+        };
+        match (want, got) {
+            (Ok(w), Ok(g)) => {
+                assert_eq!(bits(&g), bits(&w), "case {case}: {bbox:?}");
+                nonempty += usize::from(!w.is_empty());
+            }
+            (w, g) => panic!("case {case}: {w:?} against {g:?}"),
+        }
+        compared += 1;
+    }
+    assert_eq!(compared, 60);
+    assert!(nonempty > 30, "only {nonempty} cases had context points");
+    // Errors as before: a mask of the wrong size.
+    let small = Mask::new(80, 60);
+    let p = SupportParams::default();
+    let box_ = [10.0, 10.0, 40.0, 40.0];
+    assert_eq!(
+        context_points(&small, box_, &cam, &depth, &p).map_err(|e| e.to_string()),
+        context_points_whole_frame(&small, box_, &cam, &depth, &p).map_err(|e| e.to_string())
+    );
+}
