@@ -253,15 +253,11 @@ fn directional_mean_sq(a: &[Point3<f64>], tree: &Tree) -> f64 {
 /// `mean_{a∈A} min_{b∈B} |a−b|² + mean_{b∈B} min_{a∈A} |a−b|²`.
 /// `None` when either cloud is empty.
 pub fn chamfer_distance(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<f64> {
-    if a.is_empty() || b.is_empty() {
-        return None;
-    }
-    let (ta, tb) = (build_tree(a), build_tree(b));
-    Some(directional_mean_sq(a, &tb) + directional_mean_sq(b, &ta))
+    chamfer_distances(a, &[b]).pop().flatten()
 }
 
-/// [`chamfer_distance`] of `a` to each of `bs`, with `a`'s k-d tree built once (the same
-/// tree [`chamfer_distance`] builds for each pair, so the same values to the bit).
+/// [`chamfer_distance`] of `a` to each of `bs`, with `a`'s k-d tree built once for all of
+/// them (a view's value does not depend on the others: the same to the bit as alone).
 pub fn chamfer_distances<B: AsRef<[Point3<f64>]>>(a: &[Point3<f64>], bs: &[B]) -> Vec<Option<f64>> {
     let ta = (!a.is_empty() && bs.iter().any(|b| !b.as_ref().is_empty())).then(|| build_tree(a));
     bs.iter()
