@@ -13,6 +13,7 @@ pub mod projection;
 pub mod proposal;
 pub mod query_analysis;
 pub mod stitching;
+pub mod view_box;
 pub mod vlm_box;
 pub mod vlm_log;
 pub mod wall_sweep;
@@ -272,8 +273,17 @@ impl VlmGrounder {
         drop(grids);
         let slot = self.compute_slot(ctx).await?;
         still_wanted(&ctx.cancel, "projection")?;
-        let projected =
-            projection::run(self, ctx, &analysis.target_class, &pre, &choice, layout).await?;
+        let projected = projection::run(
+            self,
+            ctx,
+            budget,
+            log,
+            &analysis.target_class,
+            &pre,
+            &choice,
+            layout,
+        )
+        .await?;
         drop(slot);
 
         let total_ms = ms(started);

@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use super::grounding::Choice;
 use super::preselect::{same_class, Preselection};
+use super::vlm_log::VlmLog;
 use super::{exports, ms, step, VlmGrounder};
 use crate::geometry::ensemble::{
     find_views_with_room, mask_points, single_view_box, CandidateFrame,
@@ -28,6 +29,7 @@ use crate::geometry::{
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
 use crate::vision::{Detection, SegmentInput, Segmenter};
+use crate::vlm::CallBudget;
 
 /// The 3D answer.
 pub struct Projected {
@@ -82,13 +84,15 @@ pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4
 /// Where an ensemble view's box came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
-enum BoxFrom {
+pub enum BoxFrom {
     /// A cached detection of the target class.
     Detection,
     /// One of the view's class-agnostic candidates (`vision::candidates`).
     Candidate,
     /// The box of the reprojected anchor points.
     Footprint,
+    /// The VLM's box of the whole object in this view ([`super::view_box`]).
+    VlmBox,
 }
 
 /// Every frame's cached candidates, read once per job (one query for all the views), when
@@ -254,9 +258,12 @@ async fn segment_anchor(
 }
 
 /// The anchor's image comes with `choice`; the ensemble views are decoded here.
+#[allow(clippy::too_many_arguments)]
 pub async fn run(
     g: &VlmGrounder,
     ctx: &JobContext,
+    budget: &CallBudget,
+    log: &mut VlmLog,
     target_class: &str,
     pre: &Preselection,
     choice: &Choice,
@@ -398,6 +405,20 @@ pub async fn run(
     };
     let decode_ms = ms(td);
     let views_decoded = decoded.len();
+    let (anchor_idx, partial) = (choice.frame_idx, anchor_partial.partial);
+    let view_box = super::view_box::complete(
+        g,
+        ctx,
+        budget,
+        log,
+        target_class,
+        anchor_idx,
+        partial,
+        &views,
+        &mut view_boxes,
+        &decoded,
+    )
+    .await?;
     let down = !g.params.geometry.support.hangs(target_class);
     let flat = g.params.geometry.support.is_flat(target_class);
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
@@ -409,7 +430,6 @@ pub async fn run(
         view_boxes.clone(),
         layout,
     );
-    let anchor_idx = choice.frame_idx;
     let anchor_image = choice.image.clone();
     let trace = ctx.trace.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
@@ -546,7 +566,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

@@ -61,11 +61,14 @@ pub enum TemplateKind {
     BoxRequest,
     /// Feedback: the box cannot be used.
     FeedbackBoxInvalid,
+    /// Request for the whole target's box in an ensemble view, where the part the chosen
+    /// frame saw is outlined.
+    ViewBoxRequest,
 }
 
 impl TemplateKind {
     /// All kinds.
-    pub const ALL: [TemplateKind; 11] = [
+    pub const ALL: [TemplateKind; 12] = [
         Self::QueryAnalysis,
         Self::GroundingSystem,
         Self::GroundingInput,
@@ -77,6 +80,7 @@ impl TemplateKind {
         Self::MarkSelection,
         Self::BoxRequest,
         Self::FeedbackBoxInvalid,
+        Self::ViewBoxRequest,
     ];
 
     /// File name inside the prompts directory.
@@ -93,6 +97,7 @@ impl TemplateKind {
             Self::MarkSelection => "mark_selection.txt",
             Self::BoxRequest => "box_request.txt",
             Self::FeedbackBoxInvalid => "feedback_box_invalid.txt",
+            Self::ViewBoxRequest => "view_box_request.txt",
         }
     }
 
@@ -142,6 +147,17 @@ impl TemplateKind {
                 "box_format_help",
             ],
             Self::FeedbackBoxInvalid => &["reason", "box_format"],
+            Self::ViewBoxRequest => &[
+                "query",
+                "target_class",
+                "image_id",
+                "anchor_id",
+                "width",
+                "height",
+                "part_box",
+                "box_format",
+                "box_format_help",
+            ],
         }
     }
 
@@ -162,6 +178,7 @@ impl TemplateKind {
             Self::MarkSelection => include_str!("../../prompts/mark_selection.txt"),
             Self::BoxRequest => include_str!("../../prompts/box_request.txt"),
             Self::FeedbackBoxInvalid => include_str!("../../prompts/feedback_box_invalid.txt"),
+            Self::ViewBoxRequest => include_str!("../../prompts/view_box_request.txt"),
         }
     }
 }
@@ -457,6 +474,40 @@ impl Prompts {
                 ("image_id", format_image_id(image_id)),
                 ("width", width.to_string()),
                 ("height", height.to_string()),
+                ("box_format", format.name().to_string()),
+                ("box_format_help", format.help(width, height)),
+            ],
+        )
+    }
+
+    /// Request for the whole target's box in frame `image_id` (`width` x `height` pixels),
+    /// an ensemble view of the target that frame `anchor_id` saw in part; `part_box` is
+    /// where that part falls in this frame, in pixels (stated in `format`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn view_box_request(
+        &self,
+        query: &str,
+        target_class: &str,
+        image_id: u32,
+        anchor_id: u32,
+        (width, height): (u32, u32),
+        part_box: [f32; 4],
+        format: BoxFormat,
+    ) -> String {
+        let p = format.encode(part_box, (width, height));
+        self.render(
+            TemplateKind::ViewBoxRequest,
+            &[
+                ("query", one_line(query)),
+                ("target_class", one_line(target_class)),
+                ("image_id", format_image_id(image_id)),
+                ("anchor_id", format_image_id(anchor_id)),
+                ("width", width.to_string()),
+                ("height", height.to_string()),
+                (
+                    "part_box",
+                    format!("[{:.0}, {:.0}, {:.0}, {:.0}]", p[0], p[1], p[2], p[3]),
+                ),
                 ("box_format", format.name().to_string()),
                 ("box_format_help", format.help(width, height)),
             ],

@@ -183,3 +183,89 @@ async fn without_the_box_fallback_no_mark_means_not_in_this_image() {
     assert_eq!(text_of(last_message(&reqs[3])), fb);
     assert!(steps(&job, "vlm_box").is_empty(), "{job:#}");
 }
+
+/// The chosen view saw a part of the object (its mark runs off the frame's edge) and no
+/// ensemble view has a box of its own for it (`in_views` off: every view's box is its
+/// footprint): the VLM is asked once for the whole object's box in one view, with the part
+/// outlined (`view_box`). A box holding the part replaces that view's footprint; one that
+/// misses the part, or "not in this view", leaves it; with `view_box` off nobody is asked.
+#[tokio::test]
+async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_saw_a_part() {
+    let (w, h) = grounder::synth::SynthParams::small(SEED).color_size;
+    let whole = Some([0.0f32, 0.0, w as f32, h as f32]);
+    for (answer, on, used) in [
+        (whole, true, true),
+        (Some([0.0, 0.0, 4.0, 4.0]), true, false),
+        (None, true, false),
+        (whole, false, false),
+    ] {
+        let f = Fixture::start_with_config(5_000, "centernet", |c| {
+            c.agent.candidates.enabled = true;
+            c.agent.candidates.in_views = false;
+            c.agent.candidates.view_box = on;
+        })
+        .await;
+        // A mark of frame 0 that runs off the frame's left or right edge.
+        let cands = f
+            .store
+            .frame_candidates(&f.scene_id, 0)
+            .await
+            .unwrap()
+            .unwrap_or_default();
+        let cut = cands
+            .iter()
+            .position(|c| c.bbox[0] <= 0.0 || c.bbox[2] >= w as f32)
+            .expect("frame 0 has a mark at its edge");
+        let reply = serde_json::json!({"reasoning": "the whole board", "bbox_2d": answer});
+        f.vlm.script_push(vec![
+            analysis("whiteboard"),
+            pick_image("00000"),
+            pick_object(cut as u32),
+            Reply::ok(reply.to_string()),
+        ]);
+        let job = f.run_job(QUERY).await;
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        let proj = &steps(&job, "projection")[0]["outputs"];
+        assert_eq!(proj["anchor_partial"]["partial"], true, "{proj:#}");
+        let asked = steps(&job, "view_box");
+        if !on {
+            assert!(asked.is_empty(), "{job:#}");
+            assert!(proj["view_box"].is_null(), "{proj:#}");
+            assert_eq!(f.vlm.requests().len(), 3, "analysis, image, mark");
+            continue;
+        }
+        assert_eq!(asked.len(), 1, "{job:#}");
+        let out = &asked[0]["outputs"];
+        assert_eq!(out["used"], used, "{out:#}");
+        let view = asked[0]["inputs"]["image_id"].as_str().unwrap_or_default();
+        assert_jpeg(&f, asked[0]["inputs"]["image"].as_str().unwrap_or_default()).await;
+        // The request names the view, the chosen frame and the part's box.
+        let reqs = f.vlm.requests();
+        assert_eq!(reqs.len(), 4, "analysis, image, mark, view box");
+        let text = text_of(last_message(&reqs[3]));
+        assert!(
+            text.contains("Task: object box")
+                && text.contains(&format!("This is frame {view}"))
+                && text.contains("frame 00000"),
+            "{text}"
+        );
+        let views = proj["views"].as_array().cloned().unwrap_or_default();
+        let v = views
+            .iter()
+            .find(|v| v["image_id"] == view)
+            .expect("the view asked about is an ensemble view");
+        let others_footprint = views
+            .iter()
+            .filter(|o| o["image_id"] != view)
+            .all(|o| o["box_from"] == "footprint" && o["box"] == o["footprint"]);
+        assert!(others_footprint, "{views:#?}");
+        if used {
+            assert_eq!(v["box_from"], "vlm_box", "{v:#}");
+            assert_eq!(v["box"], serde_json::json!(answer), "{v:#}");
+        } else {
+            assert_eq!(v["box_from"], "footprint", "{v:#}");
+            assert_eq!(v["box"], v["footprint"], "{v:#}");
+        }
+        assert_trace_clean(&job);
+    }
+}

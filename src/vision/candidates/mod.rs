@@ -92,6 +92,11 @@ pub struct CandidateParams {
     /// has no depth). A view that saw the whole object needs no completing, and a
     /// class-agnostic region can hold the object together with what it stands on.
     pub in_views_partial_only: bool,
+    /// When the chosen view saw a part of the object and no ensemble view has a detection
+    /// of the class or a candidate holding it, ask the VLM for the whole object's box in
+    /// the view most likely to show all of it (one more call; the part is outlined for
+    /// it). The answer must hold at least half the reprojected part, as a detection must.
+    pub view_box: bool,
     /// What counts as a part (see `in_views_partial_only`).
     pub partial: PartialParams,
 }
@@ -118,6 +123,7 @@ impl Default for CandidateParams {
             box_fallback: true,
             in_views: true,
             in_views_partial_only: true,
+            view_box: true,
             partial: PartialParams::default(),
         }
     }
