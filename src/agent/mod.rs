@@ -4,6 +4,7 @@
 //! Every stage appends a step `{step, inputs, outputs, ms}` to the job's trace.
 
 pub mod conversation;
+pub mod ensemble_boxes;
 pub mod exports;
 pub mod grounding;
 pub mod instance;

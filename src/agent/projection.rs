@@ -1,20 +1,23 @@
 //! Stage 5: segmentation and multi-view ensemble projection (paper Sec. 3.4). The chosen
 //! box is segmented, the mask back-projected; other views that see those points are found
-//! by reprojection (our replacement for image matching), a box is segmented in each (the
-//! cached detection of the class that best overlaps the reprojected footprint, else the
-//! footprint's own box), and the views that agree (chamfer filter) are fused. Before the
+//! by reprojection (our replacement for image matching), a box is segmented in each (a
+//! cached detection of the class, a candidate or the footprint's own box:
+//! [`super::ensemble_boxes`]; the VLM's box in one view when the chosen view saw a part and
+//! no view has a box holding it: [`super::view_box`]), and the views that agree (chamfer
+//! filter) are fused. Before the
 //! union, each kept view's points are checked against the other views' masks, and the
 //! union against the depth of the frames that see it (ours: `geometry::consensus`).
 
 use image::RgbImage;
 use nalgebra::Point3;
 use serde_json::json;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 
+use super::ensemble_boxes::BoxFrom;
 use super::grounding::Choice;
-use super::preselect::{same_class, Preselection};
+use super::preselect::Preselection;
 use super::vlm_log::VlmLog;
 use super::{exports, ms, step, VlmGrounder};
 use crate::geometry::ensemble::{
@@ -28,7 +31,7 @@ use crate::geometry::{
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
-use crate::vision::{Detection, SegmentInput, Segmenter};
+use crate::vision::{SegmentInput, Segmenter};
 use crate::vlm::CallBudget;
 
 /// The 3D answer.
@@ -52,72 +55,6 @@ pub fn mask_rle(m: &Mask) -> Vec<u32> {
     }
     runs.push(n);
     runs
-}
-
-/// The detection to segment in an ensemble view (the reference's rule): among `boxes`, the
-/// one holding the most reprojected anchor pixels per unit box area, provided it holds at
-/// least half of them. Containment, not overlap, so a partial anchor (an object cut by the
-/// anchor frame's border) still selects the whole object's box in a view that sees all of it.
-pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4]> {
-    if pixels.is_empty() {
-        return None;
-    }
-    boxes
-        .iter()
-        .filter_map(|b| {
-            let inside = pixels
-                .iter()
-                .filter(|&&[x, y]| {
-                    (x as f32) >= b[0]
-                        && (x as f32) < b[2]
-                        && (y as f32) >= b[1]
-                        && (y as f32) < b[3]
-                })
-                .count();
-            let area = ((b[2] - b[0]) * (b[3] - b[1])).max(1.0);
-            (2 * inside >= pixels.len()).then_some((inside as f32 / area, *b))
-        })
-        .max_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, b)| b)
-}
-
-/// Where an ensemble view's box came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BoxFrom {
-    /// A cached detection of the target class.
-    Detection,
-    /// One of the view's class-agnostic candidates (`vision::candidates`).
-    Candidate,
-    /// The box of the reprojected anchor points.
-    Footprint,
-    /// The VLM's box of the whole object in this view ([`super::view_box`]).
-    VlmBox,
-}
-
-/// Every frame's cached candidates, read once per job (one query for all the views), when
-/// candidates are on for the views; frames indexed without them are absent.
-async fn view_candidates(
-    g: &VlmGrounder,
-    ctx: &JobContext,
-) -> Result<BTreeMap<usize, Vec<Detection>>, JobFailure> {
-    if !g.params.candidates.enabled || !g.params.candidates.in_views {
-        return Ok(BTreeMap::new());
-    }
-    ctx.store
-        .scene_candidates(&ctx.scene.id)
-        .await
-        .map_err(|e| JobFailure::new("storage_error", e.to_string()))
-}
-
-/// The view's cached candidate holding the reprojected anchor `pixels` ([`pick_detection`]).
-fn view_candidate(
-    cands: &BTreeMap<usize, Vec<Detection>>,
-    idx: usize,
-    pixels: &[[u32; 2]],
-) -> Option<[f32; 4]> {
-    let boxes: Vec<[f32; 4]> = cands.get(&idx)?.iter().map(|c| c.bbox).collect();
-    pick_detection(&boxes, pixels)
 }
 
 /// A view's segmentation: raw mask, the object's points, and the context points around it
@@ -343,15 +280,6 @@ pub async fn run(
     .map_err(|e| JobFailure::new("internal", format!("view search failed: {e}")))?;
     let find_ms = ms(tp);
 
-    // A box in each view: the cached detection of the class that best overlaps the footprint.
-    let dets = match &pre.detector_class {
-        Some(_) => ctx
-            .store
-            .detections(&scene.id, &g.detector_key)
-            .await
-            .map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
-        None => Default::default(),
-    };
     // The views' candidates may widen the object only beyond what the anchor saw in part.
     let cp = &g.params.candidates;
     let anchor_partial = partial_view(
@@ -362,40 +290,8 @@ pub async fn run(
     );
     let views_take_candidates =
         cp.enabled && cp.in_views && (!cp.in_views_partial_only || anchor_partial.partial);
-    // Read on the first view without a detection of the class, then shared by the others.
-    let mut cands: Option<BTreeMap<usize, Vec<Detection>>> = None;
-    let mut view_boxes = Vec::with_capacity(views.len());
-    for v in &views {
-        let best = pre.detector_class.as_ref().and_then(|c| {
-            let boxes: Vec<[f32; 4]> = dets
-                .get(&v.index)?
-                .iter()
-                .filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)
-                .map(|d| d.bbox)
-                .collect();
-            pick_detection(&boxes, &v.pixels)
-        });
-        // Else the view's class-agnostic candidates, by the same rule: the object the
-        // anchor's points fall on, whole, where the anchor saw only a part of it (a chair's
-        // back over a table's edge). Without either, the footprint's own box.
-        let (b, from) = match best {
-            Some(b) => (b, BoxFrom::Detection),
-            None if !views_take_candidates => (v.bbox, BoxFrom::Footprint),
-            None => {
-                if cands.is_none() {
-                    cands = Some(view_candidates(g, ctx).await?);
-                }
-                match cands
-                    .as_ref()
-                    .and_then(|c| view_candidate(c, v.index, &v.pixels))
-                {
-                    Some(b) => (b, BoxFrom::Candidate),
-                    None => (v.bbox, BoxFrom::Footprint),
-                }
-            }
-        };
-        view_boxes.push((v.index, b, from));
-    }
+    let mut view_boxes =
+        super::ensemble_boxes::boxes(g, ctx, pre, &views, views_take_candidates).await?;
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
     let td = Instant::now();
     let decoded: HashMap<usize, Arc<RgbImage>> = if idxs.is_empty() {
@@ -473,6 +369,14 @@ pub async fn run(
                 depth: af.depth.as_ref(),
                 mask: &anchor_mask,
                 points: &anchor_pts,
+                region: None,
+            };
+            // A view that segmented only the reprojected part of a partly seen object
+            // votes only inside that box.
+            let region = |i: usize| {
+                let &(_, b, from) = vb.iter().find(|v| v.0 == i)?;
+                (partial && from == BoxFrom::Footprint && params.consensus.footprints_vote_inside)
+                    .then_some(b)
             };
             let views: Vec<SegmentedView> = clouds
                 .iter()
@@ -482,6 +386,7 @@ pub async fn run(
                     depth: sc.frames[*i].depth.as_ref(),
                     mask: &c.mask,
                     points: &c.points,
+                    region: region(*i),
                 })
                 .collect();
             let frames: Vec<_> = sc
@@ -587,22 +492,5 @@ mod tests {
         let mut m = Mask::new(3, 1);
         m.set(2, 0, true);
         assert_eq!(mask_rle(&m), vec![2, 1]);
-    }
-
-    #[test]
-    fn detection_pick_prefers_containment_per_area() {
-        // Footprint: the top strip of an object cut by the anchor frame.
-        let pixels: Vec<[u32; 2]> = (10..30)
-            .flat_map(|x| (10..14).map(move |y| [x, y]))
-            .collect();
-        let whole = [8.0, 8.0, 32.0, 60.0]; // the whole object: holds all, IoU with the strip < 0.3
-        let neighbour = [28.0, 8.0, 50.0, 30.0]; // holds a corner only
-        let huge = [0.0, 0.0, 200.0, 200.0]; // holds all, but per area it loses
-        assert_eq!(
-            pick_detection(&[neighbour, huge, whole], &pixels),
-            Some(whole)
-        );
-        assert_eq!(pick_detection(&[neighbour], &pixels), None);
-        assert_eq!(pick_detection(&[whole], &[]), None);
     }
 }

@@ -6,7 +6,7 @@
 //! whole is seen only from across the room). The VLM is then shown the view most likely
 //! to hold all of the object, with the part outlined, and asked for the whole object's
 //! box there. The answer is used as a detection would be: only when it holds at least
-//! half the reprojected pixels ([`super::projection::pick_detection`]). It never fails
+//! half the reprojected pixels ([`super::ensemble_boxes::pick_detection`]). It never fails
 //! the job: a refusal, an unusable box or a failed call keeps the view's footprint.
 
 use image::RgbImage;
@@ -16,7 +16,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::conversation::Conversation;
-use super::projection::{pick_detection, BoxFrom};
+use super::ensemble_boxes::{pick_detection, BoxFrom};
 use super::vlm_log::VlmLog;
 use super::{step, VlmGrounder};
 use crate::geometry::ensemble::ViewCandidate;

@@ -39,6 +39,11 @@ pub struct ConsensusParams {
     /// The first view given to [`mask_votes`] (the agent passes the chosen view) overrules
     /// the others: a point it measures outside its mask is dropped whatever they say.
     pub anchor_veto: bool,
+    /// When the chosen view saw a part of the object, a view whose box is only that
+    /// part's reprojection (no detection, candidate or VLM box of its own) votes only
+    /// inside that box ([`MaskView::region`]): it cannot speak against the rest of the
+    /// object that another view's box holds.
+    pub footprints_vote_inside: bool,
     /// Run [`free_space_votes`] on the fused cloud with every usable frame.
     pub free_space: bool,
     /// Frames that must see past a point before it can be dropped.
@@ -54,6 +59,7 @@ impl Default for ConsensusParams {
             mask_votes: true,
             mask_dilate: 15,
             anchor_veto: true,
+            footprints_vote_inside: true,
             free_space: true,
             min_seen_through: 2,
             max_carve_frames: 20,
@@ -67,6 +73,11 @@ pub struct MaskView<'a> {
     pub camera: &'a FrameCamera,
     pub depth: &'a DepthMap,
     pub mask: &'a Mask,
+    /// The part of the frame (colour pixels, [x0, y0, x1, y1]) the mask speaks for:
+    /// outside it the view does not vote. `None`: the whole frame. A view that segmented
+    /// only the box of the chosen view's reprojected part, when that part is known to be
+    /// incomplete, knows nothing of what lies beyond that box.
+    pub region: Option<[f32; 4]>,
 }
 
 /// What one frame says about one point.
@@ -216,6 +227,7 @@ pub fn mask_votes(
                             continue;
                         };
                         match probe.look(p, params) {
+                            Seen::OnSurface(x, y) if !inside(views[k].region, x, y) => {}
                             Seen::OnSurface(x, y) if coarse[k].covers(x, y) => pro += 1,
                             Seen::OnSurface(..) if k == 0 && params.consensus.anchor_veto => {
                                 return false
@@ -229,6 +241,14 @@ pub fn mask_votes(
                 .collect()
         })
         .collect()
+}
+
+/// Whether colour pixel (x, y) lies in `region` (everywhere when `None`).
+fn inside(region: Option<[f32; 4]>, x: u32, y: u32) -> bool {
+    region.is_none_or(|b| {
+        let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+        x >= b[0] && x < b[2] && y >= b[1] && y < b[3]
+    })
 }
 
 /// Free-space carving of `points` with the frames in `frames` (camera, depth). Frames that
@@ -437,6 +457,7 @@ mod tests {
                 camera: c,
                 depth: d,
                 mask: m,
+                region: None,
             })
             .collect();
         let p = GeometryParams::default();
@@ -445,6 +466,24 @@ mod tests {
         let cloud0 = [Point3::new(0.0, 1.0, 0.5), leak];
         let keep = mask_votes(&[&cloud0, &[], &[]], &views, &p);
         assert_eq!(keep[0], vec![true, false]);
+        // Views whose masks speak only for a region: outside it they do not vote, so the
+        // leak stays when it falls outside (here an empty region); a region holding the
+        // whole frame is the whole frame.
+        for (region, kept) in [
+            ([0.0, 0.0, 0.0, 0.0], true),
+            ([0.0, 0.0, 80.0, 60.0], false),
+        ] {
+            let regional: Vec<MaskView> = views
+                .iter()
+                .enumerate()
+                .map(|(i, v)| MaskView {
+                    region: (i > 0).then_some(region),
+                    ..*v
+                })
+                .collect();
+            let keep = mask_votes(&[&cloud0, &[], &[]], &regional, &p);
+            assert_eq!(keep[0], vec![true, kept], "{region:?}");
+        }
         // With the other views' masks covering everything, the leak stays.
         let full = Mask::from_box(80, 60, [0.0, 0.0, 80.0, 60.0]);
         let lax: Vec<MaskView> = views

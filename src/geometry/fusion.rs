@@ -20,6 +20,8 @@ pub struct SegmentedView<'a> {
     pub depth: &'a DepthMap,
     pub mask: &'a Mask,
     pub points: &'a [Point3<f64>],
+    /// Where the mask speaks for the frame in the votes (see [`MaskView::region`]).
+    pub region: Option<[f32; 4]>,
 }
 
 /// What the mask votes did (for traces).
@@ -59,6 +61,7 @@ pub fn fuse_segmented(
         camera: anchor.camera,
         depth: anchor.depth,
         mask: anchor.mask,
+        region: anchor.region,
     }];
     let mut owned = vec![voxel_downsample(anchor.points, params.fusion_voxel)];
     for (v, d) in others.iter().zip(&decisions) {
@@ -67,6 +70,7 @@ pub fn fuse_segmented(
                 camera: v.camera,
                 depth: v.depth,
                 mask: v.mask,
+                region: v.region,
             });
             owned.push(voxel_downsample(v.points, params.fusion_voxel));
         }

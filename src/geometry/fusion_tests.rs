@@ -137,6 +137,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         depth: &anchor_depth,
         mask: &anchor_mask,
         points: &anchor_pts,
+        region: None,
     };
     let side = SegmentedView {
         index: 1,
@@ -144,6 +145,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         depth: &side_depth,
         mask: &side_mask,
         points: &side_pts,
+        region: None,
     };
     let frames = [(&anchor_cam, &anchor_depth), (&side_cam, &side_depth)];
     let out = fuse_segmented(anchor, &[side], &frames, &params);

@@ -1,0 +1,157 @@
+//! The box segmented in each ensemble view (paper Sec. 3.4 with our additions): the cached
+//! detection of the target class that holds the reprojected part of the object, else,
+//! when candidates are on for the views, the view's class-agnostic candidate that holds
+//! it, else the box of the reprojected points alone (the footprint). [`super::view_box`]
+//! may then ask the VLM for one view's box.
+
+use std::collections::BTreeMap;
+
+use super::preselect::{same_class, Preselection};
+use super::VlmGrounder;
+use crate::geometry::ensemble::ViewCandidate;
+use crate::jobs::{JobContext, JobFailure};
+use crate::vision::Detection;
+
+/// The detection to segment in an ensemble view (the reference's rule): among `boxes`, the
+/// one holding the most reprojected anchor pixels per unit box area, provided it holds at
+/// least half of them. Containment, not overlap, so a partial anchor (an object cut by the
+/// anchor frame's border) still selects the whole object's box in a view that sees all of it.
+pub fn pick_detection(boxes: &[[f32; 4]], pixels: &[[u32; 2]]) -> Option<[f32; 4]> {
+    if pixels.is_empty() {
+        return None;
+    }
+    boxes
+        .iter()
+        .filter_map(|b| {
+            let inside = pixels
+                .iter()
+                .filter(|&&[x, y]| {
+                    (x as f32) >= b[0]
+                        && (x as f32) < b[2]
+                        && (y as f32) >= b[1]
+                        && (y as f32) < b[3]
+                })
+                .count();
+            let area = ((b[2] - b[0]) * (b[3] - b[1])).max(1.0);
+            (2 * inside >= pixels.len()).then_some((inside as f32 / area, *b))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, b)| b)
+}
+
+/// Where an ensemble view's box came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BoxFrom {
+    /// A cached detection of the target class.
+    Detection,
+    /// One of the view's class-agnostic candidates (`vision::candidates`).
+    Candidate,
+    /// The box of the reprojected anchor points.
+    Footprint,
+    /// The VLM's box of the whole object in this view ([`super::view_box`]).
+    VlmBox,
+}
+
+/// Every frame's cached candidates, read once per job (one query for all the views), when
+/// candidates are on for the views; frames indexed without them are absent.
+async fn view_candidates(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+) -> Result<BTreeMap<usize, Vec<Detection>>, JobFailure> {
+    if !g.params.candidates.enabled || !g.params.candidates.in_views {
+        return Ok(BTreeMap::new());
+    }
+    ctx.store
+        .scene_candidates(&ctx.scene.id)
+        .await
+        .map_err(|e| JobFailure::new("storage_error", e.to_string()))
+}
+
+/// The view's cached candidate holding the reprojected anchor `pixels` ([`pick_detection`]).
+fn view_candidate(
+    cands: &BTreeMap<usize, Vec<Detection>>,
+    idx: usize,
+    pixels: &[[u32; 2]],
+) -> Option<[f32; 4]> {
+    let boxes: Vec<[f32; 4]> = cands.get(&idx)?.iter().map(|c| c.bbox).collect();
+    pick_detection(&boxes, pixels)
+}
+
+/// Each view's box and where it came from, in the order of `views`; `take_candidates`:
+/// the views' class-agnostic candidates may be used.
+pub async fn boxes(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    pre: &Preselection,
+    views: &[ViewCandidate],
+    take_candidates: bool,
+) -> Result<Vec<(usize, [f32; 4], BoxFrom)>, JobFailure> {
+    let scene = &ctx.scene;
+    // A box in each view: the cached detection of the class that best overlaps the footprint.
+    let dets = match &pre.detector_class {
+        Some(_) => ctx
+            .store
+            .detections(&scene.id, &g.detector_key)
+            .await
+            .map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
+        None => Default::default(),
+    };
+    // Read on the first view without a detection of the class, then shared by the others.
+    let mut cands: Option<BTreeMap<usize, Vec<Detection>>> = None;
+    let mut view_boxes = Vec::with_capacity(views.len());
+    for v in views {
+        let best = pre.detector_class.as_ref().and_then(|c| {
+            let boxes: Vec<[f32; 4]> = dets
+                .get(&v.index)?
+                .iter()
+                .filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)
+                .map(|d| d.bbox)
+                .collect();
+            pick_detection(&boxes, &v.pixels)
+        });
+        // Else the view's class-agnostic candidates, by the same rule: the object the
+        // anchor's points fall on, whole, where the anchor saw only a part of it (a chair's
+        // back over a table's edge). Without either, the footprint's own box.
+        let (b, from) = match best {
+            Some(b) => (b, BoxFrom::Detection),
+            None if !take_candidates => (v.bbox, BoxFrom::Footprint),
+            None => {
+                if cands.is_none() {
+                    cands = Some(view_candidates(g, ctx).await?);
+                }
+                match cands
+                    .as_ref()
+                    .and_then(|c| view_candidate(c, v.index, &v.pixels))
+                {
+                    Some(b) => (b, BoxFrom::Candidate),
+                    None => (v.bbox, BoxFrom::Footprint),
+                }
+            }
+        };
+        view_boxes.push((v.index, b, from));
+    }
+    Ok(view_boxes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn detection_pick_prefers_containment_per_area() {
+        // Footprint: the top strip of an object cut by the anchor frame.
+        let pixels: Vec<[u32; 2]> = (10..30)
+            .flat_map(|x| (10..14).map(move |y| [x, y]))
+            .collect();
+        let whole = [8.0, 8.0, 32.0, 60.0]; // the whole object: holds all, IoU with the strip < 0.3
+        let neighbour = [28.0, 8.0, 50.0, 30.0]; // holds a corner only
+        let huge = [0.0, 0.0, 200.0, 200.0]; // holds all, but per area it loses
+        assert_eq!(
+            pick_detection(&[neighbour, huge, whole], &pixels),
+            Some(whole)
+        );
+        assert_eq!(pick_detection(&[neighbour], &pixels), None);
+        assert_eq!(pick_detection(&[whole], &[]), None);
+    }
+}
