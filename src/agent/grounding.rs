@@ -2,7 +2,10 @@
 //! stitched grids; an invalid id, a frame without the target class, an unparsable reply or
 //! an invalid object id gets a feedback turn, at most `max_retries` in all. The VLM may
 //! also answer that none of the offered frames shows the target ([`Grounded::NoneOffered`]):
-//! the caller then offers the frames the detector's pre-selection left out.
+//! the caller then offers the frames the detector's pre-selection left out. A box from the
+//! marks or the VLM with almost no depth reading under it gets one feedback turn asking
+//! for a frame nearer the object (ours: the detector's boxes are checked so at
+//! pre-selection already).
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -10,11 +13,12 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::conversation::Conversation;
-use super::preselect::Preselection;
+use super::preselect::{depth_fraction, Preselection};
 use super::proposal::{propose, BoxSource, Outcome};
 use super::stitching::Grids;
 use super::vlm_log::VlmLog;
 use super::{step, VlmGrounder};
+use crate::geometry::RoomLayout;
 use crate::jobs::{JobContext, JobFailure};
 use crate::vision::{DetectInput, Detection, InstanceMask};
 use crate::vlm::json::{parse_grounding, parse_no_image, QueryAnalysis};
@@ -108,6 +112,33 @@ async fn fail_with_trace(
     Err(e)
 }
 
+/// Why a box from the marks or the VLM cannot be measured in 3D: under
+/// `min_depth_fraction` of its depth pixels hold a reading (the room's box counting for
+/// objects flat against a wall, as at pre-selection). None when it can, or when the check
+/// is off or was made once already in this job.
+fn unmeasured(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    idx: usize,
+    bbox: [f32; 4],
+    source: BoxSource,
+    layout: Option<&RoomLayout>,
+) -> Option<String> {
+    let cp = &g.params.candidates;
+    if source == BoxSource::Detector || !cp.enabled || !cp.unmeasured_retry {
+        return None;
+    }
+    let f = &ctx.scene.frames[idx];
+    let frac = depth_fraction(f, bbox, layout, &g.params.geometry.layout);
+    (frac < g.params.min_depth_fraction).then(|| {
+        format!(
+            "{:.0} % of the depth pixels under the box in image {idx:05} hold a reading (at least {:.0} % needed)",
+            frac * 100.0,
+            g.params.min_depth_fraction * 100.0
+        )
+    })
+}
+
 #[allow(clippy::too_many_arguments)]
 pub async fn run(
     g: &VlmGrounder,
@@ -117,6 +148,7 @@ pub async fn run(
     analysis: &QueryAnalysis,
     pre: &Preselection,
     grids: &Grids,
+    layout: Option<&RoomLayout>,
 ) -> Result<Grounded, JobFailure> {
     let t = Instant::now();
     let offered: Vec<u32> = pre.frames.iter().map(|&i| i as u32).collect();
@@ -145,6 +177,7 @@ pub async fn run(
         feedback_at: Vec::new(),
     };
     let mut exchanges: Vec<Value> = Vec::new();
+    let mut depth_checked = false;
     loop {
         let (reply, mut rec) = match conv.ask(g, budget, VlmStep::ImageSelection).await {
             Ok(r) => r,
@@ -208,6 +241,21 @@ pub async fn run(
             .ok_or_else(|| JobFailure::new("internal", "frame decode lost"))?;
         match propose(g, ctx, budget, &mut conv, analysis, pre, idx, &image).await? {
             Outcome::Box(bbox, source) => {
+                let why = (!depth_checked)
+                    .then(|| unmeasured(g, ctx, idx, bbox, source, layout))
+                    .flatten();
+                if let Some(why) = why {
+                    // Once per job: the next frame's box is taken as it is.
+                    depth_checked = true;
+                    let fb = g
+                        .prompts
+                        .feedback_no_depth(idx as u32, &analysis.target_class);
+                    exchanges.push(json!({"feedback": fb, "invalid": why, "box": bbox}));
+                    if let Err(e) = conv.feedback(g, fb, "no depth under the box") {
+                        return fail_with_trace(ctx, e, exchanges, t).await;
+                    }
+                    continue;
+                }
                 return Ok(Grounded::Chosen(Choice {
                     frame_idx: idx,
                     bbox,

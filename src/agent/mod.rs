@@ -247,7 +247,8 @@ impl VlmGrounder {
         drop(slot);
         let choice = loop {
             still_wanted(&ctx.cancel, "grounding")?;
-            match grounding::run(self, ctx, budget, log, &analysis, &pre, &grids).await? {
+            let room = layout.as_deref();
+            match grounding::run(self, ctx, budget, log, &analysis, &pre, &grids, room).await? {
                 grounding::Grounded::Chosen(c) => break c,
                 grounding::Grounded::NoneOffered(why) => {
                     // Once: the frames the detector left out, else the VLM's "not here".

@@ -50,7 +50,7 @@ pub struct Conversation {
     pub query: Option<String>,
     /// Image ids offered in the grounding message, if listed.
     pub offered: Option<Vec<u32>>,
-    /// Image ids rejected by object-not-existing feedback.
+    /// Image ids rejected by object-not-existing or not-measured feedback.
     pub rejected: Vec<u32>,
     /// Instance selection: the frame's image id.
     pub frame: Option<u32>,
@@ -115,7 +115,10 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
         });
     let rejected = users
         .iter()
-        .filter(|m| has_marker(&m.text, markers::OBJECT_NOT_EXISTING))
+        .filter(|m| {
+            has_marker(&m.text, markers::OBJECT_NOT_EXISTING)
+                || has_marker(&m.text, markers::NO_DEPTH)
+        })
         .flat_map(|m| five_digit_ids(&m.text))
         .collect();
     let mut conv = Conversation {

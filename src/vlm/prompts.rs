@@ -26,6 +26,8 @@ pub mod markers {
     pub const OBJECT_NOT_EXISTING: &str = "Feedback: no target in image";
     /// Feedback: the chosen object id does not exist.
     pub const OBJECT_ID_INVALID: &str = "Feedback: object id not valid";
+    /// Feedback: the box chosen in the image has almost no depth reading.
+    pub const NO_DEPTH: &str = "Feedback: target not measured";
     /// Feedback: the reply could not be parsed.
     pub const UNPARSABLE: &str = "Feedback: reply not readable";
     /// Set-of-marks selection request (pick a marked region's id).
@@ -64,11 +66,13 @@ pub enum TemplateKind {
     /// Request for the whole target's box in an ensemble view, where the part the chosen
     /// frame saw is outlined.
     ViewBoxRequest,
+    /// Feedback: the chosen box has almost no depth reading.
+    FeedbackNoDepth,
 }
 
 impl TemplateKind {
     /// All kinds.
-    pub const ALL: [TemplateKind; 12] = [
+    pub const ALL: [TemplateKind; 13] = [
         Self::QueryAnalysis,
         Self::GroundingSystem,
         Self::GroundingInput,
@@ -81,6 +85,7 @@ impl TemplateKind {
         Self::BoxRequest,
         Self::FeedbackBoxInvalid,
         Self::ViewBoxRequest,
+        Self::FeedbackNoDepth,
     ];
 
     /// File name inside the prompts directory.
@@ -98,6 +103,7 @@ impl TemplateKind {
             Self::BoxRequest => "box_request.txt",
             Self::FeedbackBoxInvalid => "feedback_box_invalid.txt",
             Self::ViewBoxRequest => "view_box_request.txt",
+            Self::FeedbackNoDepth => "feedback_no_depth.txt",
         }
     }
 
@@ -125,7 +131,9 @@ impl TemplateKind {
                 "candidates",
             ],
             Self::FeedbackImageInvalid => &["image_id", "valid_ids"],
-            Self::FeedbackObjectNotExisting => &["image_id", "target_class"],
+            Self::FeedbackObjectNotExisting | Self::FeedbackNoDepth => {
+                &["image_id", "target_class"]
+            }
             Self::FeedbackObjectIdInvalid => &["object_id", "valid_ids"],
             Self::FeedbackUnparsable => &["expected_keys"],
             Self::MarkSelection => &[
@@ -179,6 +187,7 @@ impl TemplateKind {
             Self::BoxRequest => include_str!("../../prompts/box_request.txt"),
             Self::FeedbackBoxInvalid => include_str!("../../prompts/feedback_box_invalid.txt"),
             Self::ViewBoxRequest => include_str!("../../prompts/view_box_request.txt"),
+            Self::FeedbackNoDepth => include_str!("../../prompts/feedback_no_depth.txt"),
         }
     }
 }
@@ -540,6 +549,17 @@ impl Prompts {
     pub fn feedback_object_not_existing(&self, image_id: u32, target_class: &str) -> String {
         self.render(
             TemplateKind::FeedbackObjectNotExisting,
+            &[
+                ("image_id", format_image_id(image_id)),
+                ("target_class", one_line(target_class)),
+            ],
+        )
+    }
+
+    /// Feedback: the box chosen in image `image_id` has almost no depth reading.
+    pub fn feedback_no_depth(&self, image_id: u32, target_class: &str) -> String {
+        self.render(
+            TemplateKind::FeedbackNoDepth,
             &[
                 ("image_id", format_image_id(image_id)),
                 ("target_class", one_line(target_class)),

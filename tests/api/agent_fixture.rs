@@ -113,6 +113,33 @@ impl Fixture {
         candidates: bool,
         tweak_cfg: impl FnOnce(&mut grounder::config::Config),
     ) -> Fixture {
+        let tar = std::fs::read(&scene_tar().0).unwrap();
+        Self::start_scene(
+            tar, replies, timeout_ms, detector, tweak, candidates, tweak_cfg,
+        )
+        .await
+    }
+
+    /// As `start_with_config`, uploading the scene tar `tar` instead of the shared one.
+    pub async fn start_with_tar(
+        tar: Vec<u8>,
+        timeout_ms: u64,
+        detector: &str,
+        tweak_cfg: impl FnOnce(&mut grounder::config::Config),
+    ) -> Fixture {
+        Self::start_scene(tar, vec![], timeout_ms, detector, |_| {}, false, tweak_cfg).await
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    async fn start_scene(
+        tar: Vec<u8>,
+        replies: Vec<Reply>,
+        timeout_ms: u64,
+        detector: &str,
+        tweak: impl FnOnce(&mut VlmConfig),
+        candidates: bool,
+        tweak_cfg: impl FnOnce(&mut grounder::config::Config),
+    ) -> Fixture {
         let vlm = FakeVlm::start(replies).await;
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = test_config(dir.path().to_path_buf());
@@ -127,10 +154,7 @@ impl Fixture {
         cfg.vlm = Some(vc);
         tweak_cfg(&mut cfg);
         let app = TestApp::spawn_with(cfg).await;
-        let (tar, _) = scene_tar();
-        let r = app
-            .upload(std::fs::read(tar).unwrap(), "application/x-tar")
-            .await;
+        let r = app.upload(tar, "application/x-tar").await;
         assert_eq!(r.status().as_u16(), 201);
         let scene_id = r.json::<Value>().await.unwrap()["id"]
             .as_str()

@@ -269,3 +269,101 @@ async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_sa
         assert_trace_clean(&job);
     }
 }
+
+/// The shared scene's tar with the left half of frame 0's depth emptied (no reading there,
+/// as where the object stands beyond the sensor's range).
+fn tar_without_depth_on_the_left_of_frame_0() -> Vec<u8> {
+    let mut archive = tar::Archive::new(std::fs::File::open(&scene_tar().0).unwrap());
+    let mut files = Vec::new();
+    for e in archive.entries().unwrap() {
+        let mut e = e.unwrap();
+        if !e.header().entry_type().is_file() {
+            continue;
+        }
+        let path = e.path().unwrap().to_string_lossy().to_string();
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut e, &mut bytes).unwrap();
+        if path.ends_with("depth/0.png") {
+            let mut d = image::load_from_memory(&bytes).unwrap().into_luma16();
+            let w = d.width();
+            for (x, _, p) in d.enumerate_pixels_mut() {
+                if x < w / 2 {
+                    p.0[0] = 0;
+                }
+            }
+            let mut out = std::io::Cursor::new(Vec::new());
+            image::DynamicImage::ImageLuma16(d)
+                .write_to(&mut out, image::ImageFormat::Png)
+                .unwrap();
+            bytes = out.into_inner();
+        }
+        files.push((path, bytes));
+    }
+    crate::helpers::tar_of(&files, None)
+}
+
+/// The VLM's box lies where the sensor read no depth (`unmeasured_retry`, on by default):
+/// it is told so once and chooses another frame, whose box is used. With the check off the
+/// box is taken as it is and nobody is told.
+#[tokio::test]
+async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
+    let (w, h) = grounder::synth::SynthParams::small(SEED).color_size;
+    let left = [2.0, 2.0, (w / 2 - 10) as f32, (h - 2) as f32];
+    for on in [true, false] {
+        let f = Fixture::start_with_tar(
+            tar_without_depth_on_the_left_of_frame_0(),
+            5_000,
+            "centernet",
+            |c| {
+                c.agent.candidates.enabled = true;
+                c.agent.candidates.unmeasured_retry = on;
+            },
+        )
+        .await;
+        let none = serde_json::json!({"reasoning": "no outline", "object_id": null}).to_string();
+        let boxed = serde_json::json!({"reasoning": "on the left", "bbox_2d": left}).to_string();
+        f.vlm.script_push(vec![
+            analysis("whiteboard"),
+            pick_image("00000"),
+            Reply::ok(none),
+            Reply::ok(boxed),
+            pick_image("00001"),
+            pick_object(0),
+        ]);
+        let job = f.run_job(QUERY).await;
+        let reqs = f.vlm.requests();
+        let sent: Vec<String> = reqs.iter().map(|r| text_of(last_message(r))).collect();
+        let fb = prompts().feedback_no_depth(0, "whiteboard");
+        if !on {
+            // No second image selection (the box, with no depth, may still ask for a view's
+            // box before the job ends).
+            assert!(!sent.contains(&fb), "{sent:#?}");
+            let selections = sent
+                .iter()
+                .filter(|t| t.starts_with("Task: image selection"));
+            assert_eq!(selections.count(), 1, "{sent:#?}");
+            assert!(!steps(&job, "candidates").is_empty(), "{job:#}");
+            continue;
+        }
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        assert_eq!(reqs.len(), 6, "{sent:#?}");
+        assert_eq!(sent[4], fb);
+        assert_eq!(job["result"]["image_id"], "00001", "{:#}", job["result"]);
+        // The image selection that followed records the feedback and why.
+        let sel = steps(&job, "image_selection");
+        let fed = sel.iter().any(|s| {
+            s["outputs"]["vlm"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .any(|x| {
+                    x["feedback"] == fb.as_str()
+                        && x["invalid"]
+                            .as_str()
+                            .is_some_and(|w| w.contains("depth pixels"))
+                })
+        });
+        assert!(fed, "{sel:#?}");
+        assert_trace_clean(&job);
+    }
+}

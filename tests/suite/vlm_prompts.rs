@@ -1,5 +1,6 @@
 //! Prompt templates: placeholders, rendering, overrides.
 
+use grounder::vlm::boxes::BoxFormat;
 use grounder::vlm::prompts::{
     markers, placeholders_in, GroundingInput, InstanceInput, PromptError, Prompts, ReplyKind,
     TemplateKind,
@@ -52,6 +53,22 @@ fn rendered_all(p: &Prompts) -> Vec<(TemplateKind, String)> {
         (
             TemplateKind::FeedbackUnparsable,
             p.feedback_unparsable(ReplyKind::Grounding),
+        ),
+        (
+            TemplateKind::ViewBoxRequest,
+            p.view_box_request(
+                "the white window",
+                "window",
+                16,
+                13,
+                (640, 480),
+                [157.0, 59.0, 193.0, 131.0],
+                BoxFormat::Norm1000,
+            ),
+        ),
+        (
+            TemplateKind::FeedbackNoDepth,
+            p.feedback_no_depth(26, "lamp"),
         ),
     ]
 }
@@ -111,6 +128,15 @@ fn rendered_text_carries_the_data_and_markers() {
     assert!(get(TemplateKind::FeedbackObjectNotExisting).contains("no chair in image 00007"));
     assert!(get(TemplateKind::FeedbackObjectIdInvalid).contains("are: 0, 1"));
     assert!(get(TemplateKind::FeedbackUnparsable).contains("\"target_image_id\""));
+    let v = get(TemplateKind::ViewBoxRequest);
+    assert!(v.starts_with(markers::BOX), "{v}");
+    // The view first (the frame the box is asked for), then the chosen frame; the part's
+    // box in the requested convention (0-1000 of 640 x 480).
+    let (view, anchor) = (v.find("frame 00016"), v.find("frame 00013"));
+    assert!(view.is_some() && anchor.is_some() && view < anchor, "{v}");
+    assert!(v.contains("[245, 123, 302, 273]"), "{v}");
+    let n = get(TemplateKind::FeedbackNoDepth);
+    assert!(n.starts_with(markers::NO_DEPTH) && n.contains("lamp") && n.contains("00026"));
 }
 
 #[test]
