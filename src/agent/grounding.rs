@@ -113,7 +113,7 @@ async fn fail_with_trace(
 }
 
 /// Why a box from the marks or the VLM cannot be measured in 3D: under
-/// `min_depth_fraction` of its depth pixels hold a reading (the room's box counting for
+/// `unmeasured_fraction` of its depth pixels hold a reading (the room's box counting for
 /// objects flat against a wall, as at pre-selection). None when it can, or when the check
 /// is off or was made once already in this job.
 fn unmeasured(
@@ -130,11 +130,11 @@ fn unmeasured(
     }
     let f = &ctx.scene.frames[idx];
     let frac = depth_fraction(f, bbox, layout, &g.params.geometry.layout);
-    (frac < g.params.min_depth_fraction).then(|| {
+    (frac < cp.unmeasured_fraction).then(|| {
         format!(
             "{:.0} % of the depth pixels under the box in image {idx:05} hold a reading (at least {:.0} % needed)",
             frac * 100.0,
-            g.params.min_depth_fraction * 100.0
+            cp.unmeasured_fraction * 100.0
         )
     })
 }

@@ -78,6 +78,11 @@ fn five_digit_ids(s: &str) -> Vec<u32> {
         .collect()
 }
 
+/// Feedback rejecting the chosen image: the VLM is to choose another one.
+fn sends_back(text: &str) -> bool {
+    has_marker(text, markers::OBJECT_NOT_EXISTING) || has_marker(text, markers::NO_DEPTH)
+}
+
 /// Read a conversation. None when no task marker is present.
 pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
     let users: Vec<&SeenMessage> = messages.iter().filter(|m| m.role == "user").collect();
@@ -86,7 +91,7 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
             Some((i, Mode::Instance))
         } else if has_marker(&m.text, markers::BOX) {
             Some((i, Mode::Box))
-        } else if has_marker(&m.text, markers::GROUNDING) {
+        } else if has_marker(&m.text, markers::GROUNDING) || sends_back(&m.text) {
             Some((i, Mode::Grounding))
         } else if has_marker(&m.text, markers::QUERY_ANALYSIS) {
             Some((i, Mode::Analysis))
@@ -94,6 +99,16 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
             None
         }
     })?;
+    // Feedback that sends the VLM back to choosing an image, after an object, mark or box
+    // task in that image: the image-selection task before it is the one answered again.
+    let pos = if sends_back(&users[pos].text) {
+        (0..pos)
+            .rev()
+            .find(|&i| has_marker(&users[i].text, markers::GROUNDING))
+            .unwrap_or(pos)
+    } else {
+        pos
+    };
     let task = users[pos];
     let query = users
         .iter()
@@ -115,10 +130,7 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
         });
     let rejected = users
         .iter()
-        .filter(|m| {
-            has_marker(&m.text, markers::OBJECT_NOT_EXISTING)
-                || has_marker(&m.text, markers::NO_DEPTH)
-        })
+        .filter(|m| sends_back(&m.text))
         .flat_map(|m| five_digit_ids(&m.text))
         .collect();
     let mut conv = Conversation {
@@ -598,5 +610,37 @@ mod tests {
         assert_eq!(conv.box_format, Some(BoxFormat::Norm1000));
         assert_eq!(conv.query.as_deref(), Some("the white window"));
         assert!(conv.candidates.is_empty());
+    }
+
+    #[test]
+    fn feedback_rejecting_the_image_after_a_mark_task_is_answered_as_image_selection() {
+        use crate::vlm::prompts::Prompts;
+        let p = Prompts::embedded();
+        let user = |text: String| SeenMessage {
+            role: "user".into(),
+            text,
+            images: vec![],
+        };
+        let grounding = format!(
+            "{}\nQuery: the lamp\nOffered image ids (2): 00003, 00026",
+            markers::GROUNDING
+        );
+        let marks = format!(
+            "{}\nThis is frame 00026 at full resolution (640 x 480 pixels).\nQuery: the lamp",
+            markers::MARKS
+        );
+        for fb in [
+            p.feedback_no_depth(26, "lamp"),
+            p.feedback_object_not_existing(26, "lamp"),
+        ] {
+            let conv = read_conversation(&[user(grounding.clone()), user(marks.clone()), user(fb)])
+                .expect("a task");
+            assert_eq!(conv.mode, Mode::Grounding);
+            assert_eq!(conv.rejected, vec![26]);
+            assert_eq!(conv.offered, Some(vec![3, 26]));
+        }
+        // Without the feedback the mark task is answered.
+        let conv = read_conversation(&[user(grounding), user(marks)]).expect("a task");
+        assert_eq!(conv.mode, Mode::Instance);
     }
 }

@@ -97,12 +97,17 @@ pub struct CandidateParams {
     /// the view most likely to show all of it (one more call; the part is outlined for
     /// it). The answer must hold at least half the reprojected part, as a detection must.
     pub view_box: bool,
-    /// When the box from the marks or the VLM lies where under `[agent]
-    /// min_depth_fraction` of its depth pixels hold a reading (too far for the sensor; the
-    /// room's box counts for objects flat against a wall), tell the VLM so, once per job,
-    /// and let it choose another frame: the detector's boxes are checked so at
-    /// pre-selection, marks and VLM boxes were not.
+    /// When the box from the marks or the VLM lies where under `unmeasured_fraction` of
+    /// its depth pixels hold a reading (too far for the sensor; the room's box counts for
+    /// objects flat against a wall), tell the VLM so, once per job, and let it choose
+    /// another frame: the detector's boxes are checked at pre-selection, marks and VLM
+    /// boxes were not.
     pub unmeasured_retry: bool,
+    /// "Almost no reading" for `unmeasured_retry`. Lower than `[agent]
+    /// min_depth_fraction`, which decides which frames are offered: here a choice is
+    /// overruled, and a box with a fifth of its pixels read still gives a box through
+    /// depth completion and the other views.
+    pub unmeasured_fraction: f64,
     /// What counts as a part (see `in_views_partial_only`).
     pub partial: PartialParams,
 }
@@ -131,6 +136,7 @@ impl Default for CandidateParams {
             in_views_partial_only: true,
             view_box: true,
             unmeasured_retry: true,
+            unmeasured_fraction: 0.05,
             partial: PartialParams::default(),
         }
     }
