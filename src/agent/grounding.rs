@@ -115,7 +115,7 @@ async fn fail_with_trace(
 /// Why a box from the marks or the VLM cannot be measured in 3D: under
 /// `unmeasured_fraction` of its depth pixels hold a reading (the room's box counting for
 /// objects flat against a wall, as at pre-selection). None when it can, or when the check
-/// is off or was made once already in this job.
+/// is off (the caller makes it once per job).
 fn unmeasured(
     g: &VlmGrounder,
     ctx: &JobContext,

@@ -145,7 +145,7 @@ impl VlmGrounder {
     }
 
     /// Wait for a compute slot (see `compute`); a cancel while waiting ends the job.
-    async fn compute_slot(
+    pub(crate) async fn compute_slot(
         &self,
         ctx: &JobContext,
     ) -> Result<tokio::sync::SemaphorePermit<'_>, JobFailure> {
@@ -273,7 +273,8 @@ impl VlmGrounder {
         };
         // The grids' JPEGs are on disk as artifacts; the rest of the job does not need them.
         drop(grids);
-        let slot = self.compute_slot(ctx).await?;
+        // Projection takes its compute slot itself: it lets it go while it waits for the VLM
+        // (`view_box`).
         still_wanted(&ctx.cancel, "projection")?;
         let projected = projection::run(
             self,
@@ -286,7 +287,6 @@ impl VlmGrounder {
             layout,
         )
         .await?;
-        drop(slot);
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

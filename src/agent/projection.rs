@@ -206,6 +206,7 @@ pub async fn run(
     choice: &Choice,
     layout: Option<Arc<RoomLayout>>,
 ) -> Result<Projected, JobFailure> {
+    let mut slot = Some(g.compute_slot(ctx).await?);
     let t = Instant::now();
     let scene = ctx.scene.clone();
     let cut_walls = !g.params.geometry.support.hangs(target_class)
@@ -313,8 +314,14 @@ pub async fn run(
         &views,
         &mut view_boxes,
         &decoded,
+        &mut slot,
     )
     .await?;
+    // Held to the end of the stage (taken again if the VLM was asked meanwhile).
+    let _slot = match slot {
+        Some(s) => s,
+        None => g.compute_slot(ctx).await?,
+    };
     let down = !g.params.geometry.support.hangs(target_class);
     let flat = g.params.geometry.support.is_flat(target_class);
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();

@@ -47,7 +47,8 @@ pub fn pick_view(views: &[([f32; 4], (u32, u32))], border_frac: f64) -> Option<u
 
 /// Ask for the whole object's box in one view when every view's box is its footprint and
 /// the chosen view saw a part (see the module documentation); the view's box and its
-/// source are replaced when the answer is used. Returns what was done, for the
+/// source are replaced when the answer is used. The compute `slot` is let go while the VLM
+/// is asked. Returns what was done, for the
 /// projection's trace (null when nothing was asked).
 #[allow(clippy::too_many_arguments)]
 pub async fn complete(
@@ -61,6 +62,7 @@ pub async fn complete(
     views: &[ViewCandidate],
     view_boxes: &mut [(usize, [f32; 4], BoxFrom)],
     decoded: &HashMap<usize, Arc<RgbImage>>,
+    slot: &mut Option<tokio::sync::SemaphorePermit<'_>>,
 ) -> Result<Value, JobFailure> {
     let cp = &g.params.candidates;
     if !cp.enabled
@@ -127,6 +129,9 @@ pub async fn complete(
         rounds: 0,
         feedback_at: Vec::new(),
     };
+    // Other jobs may compute while this one waits for the VLM (the caller takes a slot
+    // again before it goes on).
+    slot.take();
     let (outputs, answer) = match conv.ask(g, budget, VlmStep::Box).await {
         Err(e) if e.code == "canceled" => return Err(e),
         Err(e) => (
