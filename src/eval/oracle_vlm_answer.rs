@@ -590,13 +590,13 @@ mod tests {
     fn a_view_box_request_is_read_as_a_box_request_about_the_view() {
         use crate::vlm::prompts::Prompts;
         let text = Prompts::embedded().view_box_request(
-            "the white window",
-            "window",
-            16,
-            13,
-            (640, 480),
-            [157.0, 59.0, 193.0, 131.0],
-            BoxFormat::Norm1000,
+            "the curtain by the bed",
+            "curtain",
+            21,
+            4,
+            (320, 240),
+            [10.0, 20.0, 30.0, 40.0],
+            BoxFormat::Yxyx1000,
         );
         let seen = SeenMessage {
             role: "user".into(),
@@ -606,9 +606,9 @@ mod tests {
         let conv = read_conversation(&[seen]).expect("a task");
         assert_eq!(conv.mode, Mode::Box);
         // The view's id and size, not the chosen frame's (named later in the text).
-        assert_eq!((conv.frame, conv.frame_size), (Some(16), Some((640, 480))));
-        assert_eq!(conv.box_format, Some(BoxFormat::Norm1000));
-        assert_eq!(conv.query.as_deref(), Some("the white window"));
+        assert_eq!((conv.frame, conv.frame_size), (Some(21), Some((320, 240))));
+        assert_eq!(conv.box_format, Some(BoxFormat::Yxyx1000));
+        assert_eq!(conv.query.as_deref(), Some("the curtain by the bed"));
         assert!(conv.candidates.is_empty());
     }
 

@@ -27,6 +27,11 @@ pub fn scene_tar() -> &'static (PathBuf, SynthScene) {
     })
 }
 
+/// The bytes of the shared scene's tar.
+pub fn shared_tar() -> Vec<u8> {
+    std::fs::read(&scene_tar().0).expect("the shared scene's tar")
+}
+
 pub struct Fixture {
     pub app: TestApp,
     pub vlm: FakeVlm,
@@ -83,7 +88,7 @@ impl Fixture {
         detector: &str,
         tweak: impl FnOnce(&mut grounder::config::Config),
     ) -> Fixture {
-        Self::start_full_cfg(vec![], timeout_ms, detector, |_| {}, false, tweak).await
+        Self::start_with_tar(shared_tar(), timeout_ms, detector, tweak).await
     }
 
     /// With the class-agnostic candidates on (the default configuration).
@@ -102,20 +107,15 @@ impl Fixture {
         tweak: impl FnOnce(&mut VlmConfig),
         candidates: bool,
     ) -> Fixture {
-        Self::start_full_cfg(replies, timeout_ms, detector, tweak, candidates, |_| {}).await
-    }
-
-    async fn start_full_cfg(
-        replies: Vec<Reply>,
-        timeout_ms: u64,
-        detector: &str,
-        tweak: impl FnOnce(&mut VlmConfig),
-        candidates: bool,
-        tweak_cfg: impl FnOnce(&mut grounder::config::Config),
-    ) -> Fixture {
-        let tar = std::fs::read(&scene_tar().0).unwrap();
+        let tar = shared_tar();
         Self::start_scene(
-            tar, replies, timeout_ms, detector, tweak, candidates, tweak_cfg,
+            tar,
+            replies,
+            timeout_ms,
+            detector,
+            tweak,
+            candidates,
+            |_| {},
         )
         .await
     }
