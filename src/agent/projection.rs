@@ -26,8 +26,8 @@ use crate::geometry::ensemble::{
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
-    cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb, GeometryParams, Mask,
-    RoomLayout, WallCut,
+    cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
+    GeometryParams, Mask, RoomLayout, WallCut,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -67,8 +67,9 @@ struct ViewCloud {
     wall_cuts: Vec<WallCut>,
 }
 
-/// `cut_walls`: remove wall patches the mask leaked onto (not for objects that are flat
-/// against a wall: there the wall is the object's own plane).
+/// `cut_walls`: remove wall patches the mask leaked onto, found in the context around
+/// the mask and, given `walls` (the room's box), on the room's faced walls (not for
+/// objects that are flat against a wall: there the wall is the object's own plane).
 fn segment_points(
     seg: &dyn Segmenter,
     frame: &FrameData,
@@ -76,6 +77,7 @@ fn segment_points(
     bbox: [f32; 4],
     params: &GeometryParams,
     cut_walls: bool,
+    walls: Option<&RoomLayout>,
 ) -> anyhow::Result<ViewCloud> {
     let mask = seg.segment(
         &SegmentInput {
@@ -94,7 +96,13 @@ fn segment_points(
         Vec::new()
     };
     let (points, wall_cuts) = if cut_walls {
-        cut_wall_leaks(&points, &context, &params.support)
+        let (points, mut cuts) = match walls {
+            Some(room) => cut_room_walls(&points, &context, room, &params.support),
+            None => (points, Vec::new()),
+        };
+        let (points, more) = cut_wall_leaks(&points, &context, &params.support);
+        cuts.extend(more);
+        (points, cuts)
     } else {
         (points, Vec::new())
     };
@@ -118,6 +126,28 @@ pub async fn room_layout(
 ) -> Result<Option<Arc<RoomLayout>>, JobFailure> {
     let params = g.params.geometry.clone();
     if !params.layout.enabled || !params.support.is_flat(target_class) {
+        return Ok(None);
+    }
+    let scene = ctx.scene.clone();
+    tokio::task::spawn_blocking(move || scene.room_layout(&params.layout))
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("layout task failed: {e}")))
+}
+
+/// The room's box for cutting an object's points off its walls
+/// ([`crate::geometry::cut_room_walls`]), when walls are cut for this class and the cut and
+/// the layout are on (estimated once per loaded scene, shared with [`room_layout`]).
+async fn room_walls(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    cut_walls: bool,
+) -> Result<Option<Arc<RoomLayout>>, JobFailure> {
+    let params = g.params.geometry.clone();
+    if !cut_walls
+        || !params.layout.enabled
+        || !params.support.enabled
+        || !params.support.room_wall_cut
+    {
         return Ok(None);
     }
     let scene = ctx.scene.clone();
@@ -176,6 +206,7 @@ async fn segment_anchor(
     choice: &Choice,
     layout: Option<Arc<RoomLayout>>,
     cut_walls: bool,
+    walls: Option<Arc<RoomLayout>>,
 ) -> Result<(ViewCloud, serde_json::Value), JobFailure> {
     let sc = ctx.scene.clone();
     let anchor = sc.frames[choice.frame_idx].clone();
@@ -187,7 +218,16 @@ async fn segment_anchor(
     );
     tokio::task::spawn_blocking(move || {
         let (anchor, fill) = complete_anchor_depth(&sc, anchor, bbox, layout.as_deref(), &params);
-        segment_points(seg.as_ref(), &anchor, &image, bbox, &params, cut_walls).map(|c| (c, fill))
+        segment_points(
+            seg.as_ref(),
+            &anchor,
+            &image,
+            bbox,
+            &params,
+            cut_walls,
+            walls.as_deref(),
+        )
+        .map(|c| (c, fill))
     })
     .await
     .map_err(|e| JobFailure::new("internal", format!("segmentation task failed: {e}")))?
@@ -211,7 +251,9 @@ pub async fn run(
     let scene = ctx.scene.clone();
     let cut_walls = !g.params.geometry.support.hangs(target_class)
         && !g.params.geometry.support.is_flat(target_class);
-    let (mut cloud, mut fill) = segment_anchor(g, ctx, choice, layout.clone(), cut_walls).await?;
+    let walls = room_walls(g, ctx, cut_walls).await?;
+    let (mut cloud, mut fill) =
+        segment_anchor(g, ctx, choice, layout.clone(), cut_walls, walls.clone()).await?;
     // No frame measured the object (its points were ended on the room's box): the other
     // views are found, and their depth completed, with the room too.
     let placed = |fill: &serde_json::Value| {
@@ -227,7 +269,8 @@ pub async fn run(
         sweep = json!(refined.sweep);
         if let Some(moved) = refined.room {
             layout = Some(moved);
-            (cloud, fill) = segment_anchor(g, ctx, choice, layout.clone(), cut_walls).await?;
+            (cloud, fill) =
+                segment_anchor(g, ctx, choice, layout.clone(), cut_walls, walls.clone()).await?;
         }
     }
     let ViewCloud {
@@ -354,9 +397,17 @@ pub async fn run(
                         ),
                         None => (sc.frames[*i].clone(), serde_json::Value::Null),
                     };
-                    segment_points(seg.as_ref(), &frame, img, *b, &params, cut_walls)
-                        .ok()
-                        .map(|c| (*i, c, fill))
+                    segment_points(
+                        seg.as_ref(),
+                        &frame,
+                        img,
+                        *b,
+                        &params,
+                        cut_walls,
+                        walls.as_deref(),
+                    )
+                    .ok()
+                    .map(|c| (*i, c, fill))
                 })
                 .collect();
             // What depth completion did in each view (null when it was not asked to).

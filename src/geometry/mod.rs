@@ -60,4 +60,4 @@ pub use support::{
     context_points, extend_to_support, median_point, SupportExtension, SupportParams,
 };
 pub use wall_sweep::{sweep_wall, wall_moved, WallSweep, WallSweepParams};
-pub use walls::{cut_wall_leaks, WallCut};
+pub use walls::{cut_room_walls, cut_wall_leaks, WallCut};

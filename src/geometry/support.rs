@@ -109,6 +109,13 @@ pub struct SupportParams {
     pub planar_front_share: f64,
     /// Cut the patch of a wall an object's mask leaked onto (see [`super::walls`]).
     pub wall_cut: bool,
+    /// Cut the points of an object not flat against a wall that lie on a wall of the
+    /// room's box ([`super::walls::cut_room_walls`]; needs `agent.geometry.layout`).
+    pub room_wall_cut: bool,
+    /// How far (m) from the room's wall one frame's points may show it (the frame's pose
+    /// error): the wall cut by `room_wall_cut` is the densest layer of the frame's context
+    /// within this distance.
+    pub room_wall_search: f64,
 }
 
 impl SupportParams {
@@ -180,6 +187,8 @@ impl Default for SupportParams {
             planar_max_depth: 0.15,
             planar_front_share: 0.15,
             wall_cut: true,
+            room_wall_cut: true,
+            room_wall_search: 0.12,
         }
     }
 }

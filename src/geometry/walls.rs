@@ -9,12 +9,13 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::support::find_layer;
-use super::{Aabb, SupportParams};
+use super::{Aabb, RoomLayout, SupportParams};
 
 /// One wall whose points were cut from an object's cloud.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct WallCut {
-    /// "x" or "y".
+    /// "x" or "y" (a wall found in the context, [`cut_wall_leaks`]); "u" or "v" (a wall of
+    /// the room's box, on the room's own axes, [`cut_room_walls`]).
     pub axis: &'static str,
     /// "min" or "max" face of the cloud's box.
     pub side: &'static str,
@@ -85,6 +86,121 @@ pub fn cut_wall_leaks(
     (pts, cuts)
 }
 
+/// Remove from `points` those within one support layer (either side) of a wall of the
+/// room's box that a camera faced (`RoomLayout::faced`): an object that is not flat against
+/// a wall has no surface on the wall's plane, so points there are the wall seen around or
+/// behind it (a floor lamp's thin pole in front of a wall fills little of its box; the
+/// segmenter grows over the wall that fills the rest). Not for classes flat against a
+/// wall, whose plane it is (the caller decides).
+///
+/// The room's box is fitted to every frame, and one frame's pose error moves its points a
+/// few centimetres off it; far from the camera, depth noise spreads a wall over a layer
+/// several centimetres thick. So each wall is taken from this frame's `context` (its
+/// points around the mask): at the densest layer within `room_wall_search` of the box's
+/// wall, with a band of [`WALL_SPREADS`] times the spread of the context's points about it
+/// (a robust standard deviation), at least `layer` and at most `room_wall_search`. Too
+/// few context points there: the box's wall, `layer` either side. Nothing is cut when
+/// fewer than `min_points` points would remain: then the mask holds nothing but wall, and
+/// no cut makes it the object.
+pub fn cut_room_walls(
+    points: &[Point3<f64>],
+    context: &[Point3<f64>],
+    room: &RoomLayout,
+    p: &SupportParams,
+) -> (Vec<Point3<f64>>, Vec<WallCut>) {
+    if !p.enabled || !p.room_wall_cut {
+        return (points.to_vec(), Vec::new());
+    }
+    // Coordinate on the room's u or v axis: walls 0, 1 are u low / high, 2, 3 v low / high.
+    let along = |i: usize, q: &Point3<f64>| {
+        let (u, v) = room.turn(q.x, q.y);
+        if i < 2 {
+            u
+        } else {
+            v
+        }
+    };
+    // (wall index, where this frame has it, half-width of the band cut).
+    let walls: Vec<(usize, f64, f64)> = [room.u[0], room.u[1], room.v[0], room.v[1]]
+        .into_iter()
+        .enumerate()
+        .filter_map(|(i, w)| w.filter(|_| room.faced[i]).map(|w| (i, w)))
+        .map(|(i, w)| {
+            let near: Vec<f64> = context
+                .iter()
+                .map(|q| along(i, q))
+                .filter(|c| (c - w).abs() <= p.room_wall_search)
+                .collect();
+            match densest_layer(near.clone(), p.layer, p.min_points) {
+                Some(at) => {
+                    let sigma = 1.4826 * median(near.iter().map(|c| (c - at).abs()).collect());
+                    let band = (WALL_SPREADS * sigma).clamp(p.layer, p.room_wall_search);
+                    (i, at, band)
+                }
+                None => (i, w, p.layer),
+            }
+        })
+        .collect();
+    if walls.is_empty() {
+        return (points.to_vec(), Vec::new());
+    }
+    let mut removed = [0usize; 4];
+    let mut keep = Vec::with_capacity(points.len());
+    for q in points {
+        match walls
+            .iter()
+            .find(|&&(i, w, band)| (along(i, q) - w).abs() <= band)
+        {
+            Some(&(i, _, _)) => removed[i] += 1,
+            None => keep.push(*q),
+        }
+    }
+    if keep.len() == points.len() || keep.len() < p.min_points {
+        return (points.to_vec(), Vec::new());
+    }
+    let cuts = walls
+        .iter()
+        .filter(|&&(i, _, _)| removed[i] > 0)
+        .map(|&(i, wall, _)| WallCut {
+            axis: if i < 2 { "u" } else { "v" },
+            side: if i % 2 == 0 { "min" } else { "max" },
+            wall,
+            removed: removed[i],
+        })
+        .collect();
+    (keep, cuts)
+}
+
+/// The band [`cut_room_walls`] cuts about a wall, in robust standard deviations of the
+/// frame's wall points: nearly all of a normally spread layer.
+pub const WALL_SPREADS: f64 = 2.5;
+
+/// The median of `values` (0 when empty).
+fn median(mut values: Vec<f64>) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The median of the most populous run of `values` no wider than `width`, when it holds at
+/// least `min` of them.
+fn densest_layer(mut values: Vec<f64>, width: f64, min: usize) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let (mut best, mut start) = ((0, 0), 0);
+    for end in 0..values.len() {
+        while values[end] - values[start] > width {
+            start += 1;
+        }
+        if end + 1 - start > best.1 - best.0 {
+            best = (start, end + 1);
+        }
+    }
+    let run = &values[best.0..best.1];
+    (run.len() >= min.max(1)).then(|| run[run.len() / 2])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -149,5 +265,163 @@ mod tests {
         let (kept, cuts) = cut_wall_leaks(&pic, &ctx, &SupportParams::default());
         assert!(cuts.is_empty(), "{cuts:?}");
         assert_eq!(kept.len(), pic.len());
+    }
+
+    /// A 4 x 3 m room turned by `angle` degrees, its walls u = 0, 4 and v = 0, 3, all
+    /// faced but the first when `first_faced` is false.
+    fn room(angle: f64, first_faced: bool) -> RoomLayout {
+        RoomLayout {
+            angle_deg: angle,
+            u: [Some(0.0), Some(4.0)],
+            v: [Some(0.0), Some(3.0)],
+            faced: [first_faced, true, true, true],
+            floor: Some(0.0),
+            ceiling: Some(2.5),
+            range: 5.0,
+            reach: [[0.0, 4.0], [0.0, 3.0], [0.0, 2.5]],
+            points: 1000,
+        }
+    }
+
+    #[test]
+    fn a_floor_lamp_keeps_its_pole_and_loses_the_wall_behind_it() {
+        // In room coordinates (u, v, z): a pole 25 cm in front of the wall u = 0 and the
+        // wall behind and beside it, a little noisy (within 1.5 cm of the plane), which
+        // fills most of the mask. Turned by the room's angle into x, y.
+        for angle in [0.0, 30.0] {
+            let r = room(angle, true);
+            let (s, c) = f64::to_radians(angle).sin_cos();
+            // (u, v) -> (x, y): the inverse of `RoomLayout::turn`.
+            let at = |u: f64, v: f64, z: f64| Point3::new(c * u - s * v, s * u + c * v, z);
+            let pole = grid((1.0, 1.03), (0.0, 1.5), 0.01, |v, z| at(0.25, v, z));
+            let mut mask = pole.clone();
+            mask.extend(grid((0.8, 1.25), (0.0, 1.5), 0.01, |v, z| {
+                at(0.015 * ((v * 100.0).round() % 3.0 - 1.0), v, z)
+            }));
+            let (kept, cuts) = cut_room_walls(&mask, &[], &r, &SupportParams::default());
+            assert_eq!(kept.len(), pole.len(), "angle {angle}: {cuts:?}");
+            for (a, b) in kept.iter().zip(&pole) {
+                assert!((a - b).norm() < 1e-12);
+            }
+            assert_eq!(cuts.len(), 1, "{cuts:?}");
+            assert_eq!((cuts[0].axis, cuts[0].side), ("u", "min"));
+            assert_eq!(cuts[0].removed, mask.len() - pole.len());
+            // A wall no camera faced is where the points end, not a measured plane: kept.
+            let (kept, cuts) =
+                cut_room_walls(&mask, &[], &room(angle, false), &SupportParams::default());
+            assert!(cuts.is_empty() && kept.len() == mask.len());
+        }
+    }
+
+    #[test]
+    fn the_wall_is_cut_where_this_frame_measures_it() {
+        // The frame's pose error puts its wall 6 cm in front of the room's (u = 0): the
+        // band around the room's wall misses most of the patch; the frame's context, the
+        // wall around the mask, says where it lies in this frame.
+        let r = room(0.0, true);
+        let off = 0.06;
+        let pole = grid((1.0, 1.03), (0.0, 1.5), 0.01, |y, z| Point3::new(0.3, y, z));
+        let mut mask = pole.clone();
+        mask.extend(grid((0.8, 1.25), (0.0, 1.5), 0.01, |y, z| {
+            Point3::new(off + 0.015 * ((y * 100.0).round() % 3.0 - 1.0), y, z)
+        }));
+        let ctx: Vec<Point3<f64>> =
+            grid((0.5, 1.6), (0.0, 2.0), 0.02, |y, z| Point3::new(off, y, z))
+                .into_iter()
+                .filter(|q| !(q.y > 0.78 && q.y < 1.27 && q.z < 1.52))
+                .collect();
+        let p = SupportParams::default();
+        let (kept, cuts) = cut_room_walls(&mask, &ctx, &r, &p);
+        assert_eq!(kept.len(), pole.len(), "{cuts:?}");
+        assert!((cuts[0].wall - off).abs() < 0.011, "{cuts:?}");
+        // Without the context, the room's wall: most of the patch is left.
+        let (kept, _) = cut_room_walls(&mask, &[], &r, &p);
+        assert!(kept.len() > pole.len() + (mask.len() - pole.len()) / 2);
+        // A surface farther from the room's wall than `room_wall_search` is not taken for
+        // it: the box's wall is used.
+        let far: Vec<Point3<f64>> = ctx.iter().map(|q| Point3::new(0.3, q.y, q.z)).collect();
+        let (_, cuts) = cut_room_walls(&mask, &far, &r, &p);
+        assert!(cuts.iter().all(|c| c.wall == 0.0), "{cuts:?}");
+    }
+
+    #[test]
+    fn a_wall_far_from_the_camera_is_cut_over_the_thickness_its_noise_gives_it() {
+        // Depth noise about 3 cm (a wall 4–5 m away): the wall points spread over ±7 cm.
+        let r = room(0.0, true);
+        let mut seed = 7u64;
+        let mut noise = move || {
+            // The sum of four uniforms, scaled to a standard deviation of 3 cm.
+            let mut sum = 0.0;
+            for _ in 0..4 {
+                seed = seed
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                sum += (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            }
+            sum * 0.03 / (4.0f64 / 12.0).sqrt()
+        };
+        let pole = grid((1.0, 1.03), (0.0, 1.5), 0.01, |y, z| Point3::new(0.3, y, z));
+        let wall: Vec<Point3<f64>> =
+            grid((0.8, 1.25), (0.0, 1.5), 0.01, |y, z| Point3::new(0.0, y, z))
+                .into_iter()
+                .map(|q| Point3::new(noise(), q.y, q.z))
+                .collect();
+        let ctx: Vec<Point3<f64>> =
+            grid((0.5, 1.6), (0.0, 2.0), 0.02, |y, z| Point3::new(0.0, y, z))
+                .into_iter()
+                .filter(|q| !(q.y > 0.78 && q.y < 1.27 && q.z < 1.52))
+                .map(|q| Point3::new(noise(), q.y, q.z))
+                .collect();
+        let mut mask = pole.clone();
+        mask.extend(&wall);
+        let p = SupportParams::default();
+        let (kept, cuts) = cut_room_walls(&mask, &ctx, &r, &p);
+        let left = kept.len() - pole.len();
+        assert!(kept.iter().filter(|q| q.x > 0.29).count() == pole.len());
+        assert!(
+            left * 50 < wall.len(),
+            "{left} of {} wall points left",
+            wall.len()
+        );
+        assert_eq!(cuts[0].removed, mask.len() - kept.len());
+        // The fixed band of one layer (±4 cm) leaves the sixth of them beyond it.
+        let (kept, _) = cut_room_walls(&mask, &[], &r, &p);
+        assert!((kept.len() - pole.len()) * 10 > wall.len());
+    }
+
+    #[test]
+    fn a_mask_of_nothing_but_wall_is_not_cut_to_nothing_and_the_cut_can_be_switched_off() {
+        let r = room(0.0, true);
+        let wall = grid((0.8, 1.25), (0.0, 1.5), 0.01, |y, z| {
+            Point3::new(0.01, y, z)
+        });
+        // Fewer than `min_points` would remain: the mask is left as it is.
+        let mut few = wall.clone();
+        few.extend(grid((1.0, 1.02), (0.5, 0.52), 0.01, |y, z| {
+            Point3::new(0.3, y, z)
+        }));
+        let p = SupportParams::default();
+        assert!(few.len() - wall.len() < p.min_points);
+        let (kept, cuts) = cut_room_walls(&few, &[], &r, &p);
+        assert!(cuts.is_empty() && kept.len() == few.len());
+        // Enough remain: cut. Off, or with support completion off: not.
+        let mut lamp = wall.clone();
+        lamp.extend(grid((1.0, 1.03), (0.0, 1.5), 0.01, |y, z| {
+            Point3::new(0.3, y, z)
+        }));
+        assert_eq!(cut_room_walls(&lamp, &[], &r, &p).1.len(), 1);
+        for off in [
+            SupportParams {
+                room_wall_cut: false,
+                ..SupportParams::default()
+            },
+            SupportParams {
+                enabled: false,
+                ..SupportParams::default()
+            },
+        ] {
+            let (kept, cuts) = cut_room_walls(&lamp, &[], &r, &off);
+            assert!(cuts.is_empty() && kept.len() == lamp.len());
+        }
     }
 }

@@ -2,7 +2,7 @@
 //! per loaded scene and shared by the jobs, not once per query (#18's timing target).
 
 use crate::agent_fixture::*;
-use grounder::geometry::GeometryParams;
+use grounder::geometry::{Aabb, GeometryParams};
 use serde_json::Value;
 
 /// A class flat against a wall (so its jobs use the room) with a frame showing exactly one
@@ -71,4 +71,85 @@ async fn the_room_estimated_at_indexing_serves_every_job() {
     assert_eq!(jobs[0].1, jobs[1].1);
     assert_eq!(jobs[0].2, 1, "indexing's estimate, no job's: {jobs:?}");
     assert_eq!(jobs[1].2, 1, "{jobs:?}");
+}
+
+/// Each class not flat against a wall seen alone in a frame: its job's room-wall cuts
+/// (the segmentation step's `wall_cuts` on the room's own axes, "u" or "v") and its box.
+async fn cuts_by_class(f: &Fixture) -> Vec<(String, Vec<Value>, Value)> {
+    let support = GeometryParams::default().support;
+    let mut labels: Vec<String> = f.dets.values().flatten().map(|d| d.label.clone()).collect();
+    labels.sort();
+    labels.dedup();
+    let mut out = Vec::new();
+    for class in labels.into_iter().filter(|l| !support.is_flat(l)) {
+        let Some(&frame) = f.frames_with(&class, 1).first() else {
+            continue;
+        };
+        f.vlm
+            .script_push(vec![analysis(&class), pick_image(format!("{frame:05}"))]);
+        let job = f.run_job(&format!("the {class}")).await;
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        let seg = steps(&job, "segmentation");
+        let cuts: Vec<Value> = seg[0]["outputs"]["wall_cuts"]
+            .as_array()
+            .expect("wall_cuts")
+            .iter()
+            .filter(|c| c["axis"] == "u" || c["axis"] == "v")
+            .cloned()
+            .collect();
+        out.push((class, cuts, job["result"]["box"].clone()));
+    }
+    out
+}
+
+/// A job's box (`result.box`) as an `Aabb`.
+fn aabb(b: &Value) -> Aabb {
+    let p = |k: &str| {
+        let v: Vec<f64> = b[k]
+            .as_array()
+            .expect("box corner")
+            .iter()
+            .map(|x| x.as_f64().expect("number"))
+            .collect();
+        [v[0], v[1], v[2]]
+    };
+    Aabb {
+        min: p("min"),
+        max: p("max"),
+    }
+}
+
+#[tokio::test]
+async fn points_on_a_wall_of_the_room_are_cut_from_an_object_that_is_not_flat() {
+    let on = cuts_by_class(&Fixture::start(vec![], 10_000).await).await;
+    let off = Fixture::start_with_config(10_000, "oracle", |c| {
+        c.agent.geometry.support.room_wall_cut = false;
+    })
+    .await;
+    let off = cuts_by_class(&off).await;
+    let truth = &scene_tar().1.objects;
+    let mut cut = 0;
+    for ((class, cuts, b), (class_off, cuts_off, b_off)) in on.iter().zip(&off) {
+        assert_eq!(class, class_off);
+        assert!(cuts_off.is_empty(), "{class}: cut while off: {cuts_off:?}");
+        if cuts.is_empty() {
+            continue;
+        }
+        cut += 1;
+        // The object asked for: the instance of that class the box lies on.
+        let (a, a_off) = (aabb(b), aabb(b_off));
+        let gt = truth
+            .iter()
+            .filter(|o| o.label == *class)
+            .max_by(|x, y| a.iou(&x.aabb).total_cmp(&a.iou(&y.aabb)))
+            .expect("the class's object");
+        let (iou, iou_off) = (a.iou(&gt.aabb), a_off.iou(&gt.aabb));
+        eprintln!("{class}: {cuts:?} IoU {iou:.3} (off {iou_off:.3})");
+        // What was cut was the wall, not the object.
+        assert!(
+            iou >= iou_off - 0.02 && iou > 0.5,
+            "{class}: IoU {iou:.3} with the cut, {iou_off:.3} without; {cuts:?}"
+        );
+    }
+    assert!(cut > 0, "no job cut a room wall: {on:?}");
 }
