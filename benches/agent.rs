@@ -200,10 +200,6 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
                     .or_default()
                     .push(s["outputs"]["tiles_cached"].as_f64().unwrap_or(0.0));
                 extra
-                    .entry("stitching.frames_cached")
-                    .or_default()
-                    .push(s["outputs"]["frames_cached"].as_f64().unwrap_or(0.0));
-                extra
                     .entry("stitching.grids_cached")
                     .or_default()
                     .push(s["outputs"]["grids_cached"].as_f64().unwrap_or(0.0));

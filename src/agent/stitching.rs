@@ -127,7 +127,7 @@ pub async fn run(
         .map(|(im, url)| json!({"url": url, "rows": im.spec.rows, "cols": im.spec.cols, "image_ids": im.image_ids, "width": im.width, "height": im.height, "jpeg_bytes": im.jpeg.len()}))
         .collect();
     let previews = from_preview.iter().filter(|&&p| p).count();
-    step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": stats.decode_ms, "render_ms": stats.render_ms, "tiles_cached": stats.tiles_cached, "frames_cached": stats.frames_cached, "grids_cached": stats.grids_cached, "from_previews": previews}), t).await;
+    step(ctx, "stitching", json!({"frames": pre.frames.len(), "limit": limit}), json!({"grids": grids, "decode_ms": stats.decode_ms, "render_ms": stats.render_ms, "tiles_cached": stats.tiles_cached, "grids_cached": stats.grids_cached, "from_previews": previews}), t).await;
     Ok(Grids { images, urls })
 }
 

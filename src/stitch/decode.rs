@@ -52,24 +52,15 @@ fn scaled_side(full: u32, eighths: u32) -> u32 {
     (full * eighths).div_ceil(8)
 }
 
-/// The DCT scale, in eighths (1, 2 or 4; 8 for the full size), at which
-/// [`decode_at_least`] decodes a JPEG of `full` = (width, height) pixels for a tile of
-/// `want`: two tiles of one frame with the same scale are resized from the same decoded
-/// image.
-pub fn decode_eighths(full: (u32, u32), want: (u32, u32)) -> u32 {
-    [1, 2, 4]
-        .into_iter()
-        .find(|&e| scaled_side(full.0, e) >= want.0 && scaled_side(full.1, e) >= want.1)
-        .unwrap_or(8)
-}
-
 /// [`decode_at_least`]'s reduced-scale decode; `None` where it does not apply or fails.
 fn scaled_jpeg(bytes: &[u8], want: (u32, u32)) -> Option<RgbImage> {
     let mut dec = jpeg_decoder::Decoder::new(bytes);
     // The full size first (a request larger than any image selects the full scale).
     let (fw, fh) = dec.scale(u16::MAX, u16::MAX).ok()?;
     let (fw, fh) = (u32::from(fw), u32::from(fh));
-    let eighths = Some(decode_eighths((fw, fh), want)).filter(|&e| e < 8)?;
+    let eighths = [1, 2, 4]
+        .into_iter()
+        .find(|&e| scaled_side(fw, e) >= want.0 && scaled_side(fh, e) >= want.1)?;
     let (sw, sh) = (scaled_side(fw, eighths), scaled_side(fh, eighths));
     // `scale` takes the smallest scale that reaches the request in either dimension: asking
     // for exactly the chosen scale's size selects it; anything else is refused below.

@@ -5,10 +5,7 @@
 //! [`TileCache`] keeps both, bounded in bytes, least recently used dropped first. A tile is
 //! keyed by its file (path, size and modification time, so a rewritten file is never served
 //! from an old tile), its size and the filter; a grid by its tiles, ids, layout and
-//! options. A tile's size follows its grid's layout, which follows how many frames a query
-//! shows, so a frame shown by two queries often needs two tile sizes: the decoded frame is
-//! kept too, keyed by its file and the DCT scale it was decoded at
-//! ([`super::decode::decode_eighths`]), which many tile sizes share. [`stitch_files`] draws the same grids as [`super::stitch_with_specs`] on the
+//! options. [`stitch_files`] draws the same grids as [`super::stitch_with_specs`] on the
 //! decoded files, to the byte.
 
 use super::plan::{grid_starts, GridSpec};
@@ -37,15 +34,6 @@ struct TileKey {
     filter: ResizeFilter,
 }
 
-/// What identifies a decoded frame: its file and the DCT scale (eighths) it was decoded at.
-#[derive(Debug, Clone, PartialEq, Eq, Hash)]
-struct FrameKey {
-    path: PathBuf,
-    len: u64,
-    modified: Option<SystemTime>,
-    eighths: u32,
-}
-
 /// What identifies an encoded grid: its tiles, ids, layout and options.
 #[derive(Debug, Clone, PartialEq)]
 struct GridKey {
@@ -58,21 +46,19 @@ struct GridKey {
 #[derive(Debug, Clone, PartialEq)]
 enum Key {
     Tile(TileKey),
-    Frame(FrameKey),
     Grid(GridKey),
 }
 
 #[derive(Clone)]
 enum Kept {
-    /// A tile or a decoded frame.
-    Image(Arc<RgbImage>),
+    Tile(Arc<RgbImage>),
     Grid(Arc<StitchedImage>),
 }
 
 impl Kept {
     fn bytes(&self) -> u64 {
         match self {
-            Kept::Image(t) => t.as_raw().len() as u64,
+            Kept::Tile(t) => t.as_raw().len() as u64,
             Kept::Grid(g) => g.jpeg.len() as u64,
         }
     }
@@ -85,7 +71,7 @@ struct Inner {
     bytes: u64,
 }
 
-/// Resized tiles, decoded frames and encoded grids, bounded in bytes (see the module documentation).
+/// Resized tiles and encoded grids, bounded in bytes (see the module documentation).
 /// 0 keeps nothing.
 pub struct TileCache {
     max_bytes: u64,
@@ -139,9 +125,9 @@ impl TileCache {
         }
     }
 
-    fn image(&self, key: Key) -> Option<Arc<RgbImage>> {
-        match self.get(&key)? {
-            Kept::Image(t) => Some(t),
+    fn tile(&self, key: &TileKey) -> Option<Arc<RgbImage>> {
+        match self.get(&Key::Tile(key.clone()))? {
+            Kept::Tile(t) => Some(t),
             Kept::Grid(_) => None,
         }
     }
@@ -149,16 +135,16 @@ impl TileCache {
     fn grid(&self, key: &GridKey) -> Option<Arc<StitchedImage>> {
         match self.get(&Key::Grid(key.clone()))? {
             Kept::Grid(g) => Some(g),
-            Kept::Image(_) => None,
+            Kept::Tile(_) => None,
         }
     }
 
-    /// Bytes kept (tiles' and decoded frames' pixels, grids' JPEGs).
+    /// Bytes kept (tiles' pixels and grids' JPEGs).
     pub fn bytes(&self) -> u64 {
         self.lock().bytes
     }
 
-    /// Tiles, decoded frames and grids kept.
+    /// Tiles and grids kept.
     pub fn len(&self) -> usize {
         self.lock().kept.len()
     }
@@ -177,8 +163,6 @@ pub struct StitchStats {
     pub render_ms: f64,
     /// Tiles taken from the cache (for grids not taken whole from it).
     pub tiles_cached: usize,
-    /// Tiles resized from a decoded frame taken from the cache (the tile itself was not).
-    pub frames_cached: usize,
     /// Grids taken whole from the cache (same tiles, ids, layout and options).
     pub grids_cached: usize,
 }
@@ -206,38 +190,19 @@ fn probe(path: &Path) -> Result<(u64, Option<SystemTime>, (u32, u32))> {
     Ok((meta.len(), meta.modified().ok(), dims))
 }
 
-/// The tile `k` of a file whose image is `full` = (width, height) pixels: its file decoded
-/// (or the decoded frame taken from `cache`, then the second value is true) and resized to
-/// the tile's size as [`super::render_grid`] draws a tile. A JPEG is decoded at the
-/// smallest DCT scale still at least the tile's size ([`super::decode::decode_at_least`]),
-/// which depends on the frame's size and the tile's only
-/// ([`super::decode::decode_eighths`]), as the decoded frame's key says; another format is
-/// decoded whole whatever the scale, so every key of it holds the same image.
-fn make_tile(k: &TileKey, full: (u32, u32), cache: &TileCache) -> Result<(RgbImage, bool)> {
-    let fk = Key::Frame(FrameKey {
-        path: k.path.clone(),
-        len: k.len,
-        modified: k.modified,
-        eighths: super::decode::decode_eighths(full, (k.w, k.h)),
-    });
-    let (img, hit) = match cache.image(fk.clone()) {
-        Some(img) => (img, true),
-        None => {
-            let path = &k.path;
-            let bytes =
-                std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-            let img = super::decode::decode_at_least(&bytes, (k.w, k.h))
-                .with_context(|| format!("in {}", path.display()))?;
-            let img = Arc::new(img);
-            cache.put(fk, Kept::Image(img.clone()));
-            (img, false)
-        }
-    };
-    let mut tile = RgbImage::new(k.w, k.h);
+/// Decode `path` and resize it to `w` x `h` as [`super::render_grid`] draws a tile. A
+/// JPEG is decoded at the smallest DCT scale still at least `w` x `h`
+/// ([`super::decode::decode_at_least`]), so the tile depends on the file and its size only,
+/// as its cache key says.
+fn make_tile(path: &Path, w: u32, h: u32, filter: ResizeFilter) -> Result<RgbImage> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let img = super::decode::decode_at_least(&bytes, (w, h))
+        .with_context(|| format!("in {}", path.display()))?;
+    let mut tile = RgbImage::new(w, h);
     fast_image_resize::Resizer::new()
-        .resize(img.as_ref(), &mut tile, &k.filter.options())
+        .resize(&img, &mut tile, &filter.options())
         .context("cannot resize a tile")?;
-    Ok((tile, hit))
+    Ok(tile)
 }
 
 /// Copy `tile` into `out` with its top-left corner at (`x`, `y`), clipped to `out`: the
@@ -330,33 +295,25 @@ pub fn stitch_files(
     let cached: Vec<Option<Arc<RgbImage>>> = keys
         .iter()
         .zip(&wanted)
-        .map(|(k, &w)| {
-            if w {
-                cache.image(Key::Tile(k.clone()))
-            } else {
-                None
-            }
-        })
+        .map(|(k, &w)| if w { cache.tile(k) } else { None })
         .collect();
     let tiles_cached = cached.iter().filter(|c| c.is_some()).count();
-    let made: Vec<(Option<Arc<RgbImage>>, bool)> = keys
+    let tiles: Vec<Option<Arc<RgbImage>>> = keys
         .par_iter()
         .zip(cached)
         .zip(&wanted)
-        .zip(&dims)
-        .map(|(((k, c), &w), &full)| match c {
-            Some(t) => Ok((Some(t), false)),
-            None if !w => Ok((None, false)),
+        .map(|((k, c), &w)| match c {
+            Some(t) => Ok(Some(t)),
+            None if !w => Ok(None),
             None => {
-                let (t, hit) = make_tile(k, full, cache).context(UnreadableFile(k.path.clone()))?;
+                let t = make_tile(&k.path, k.w, k.h, k.filter)
+                    .context(UnreadableFile(k.path.clone()))?;
                 let t = Arc::new(t);
-                cache.put(Key::Tile(k.clone()), Kept::Image(t.clone()));
-                Ok((Some(t), hit))
+                cache.put(Key::Tile(k.clone()), Kept::Tile(t.clone()));
+                Ok(Some(t))
             }
         })
         .collect::<Result<_>>()?;
-    let frames_cached = made.iter().filter(|m| m.1).count();
-    let tiles: Vec<Option<Arc<RgbImage>>> = made.into_iter().map(|m| m.0).collect();
     let decode_ms = ms(t);
     let t = Instant::now();
     let grids_cached = whole.iter().filter(|w| w.is_some()).count();
@@ -406,7 +363,6 @@ pub fn stitch_files(
         decode_ms,
         render_ms: ms(t),
         tiles_cached,
-        frames_cached,
         grids_cached,
     };
     Ok((images, stats))
@@ -475,12 +431,8 @@ mod tests {
             let want = reference(&decoded, &ids, &specs, &o);
             let cache = TileCache::default();
             let (first, s1) = stitch_files(&paths, &ids, &specs, &o, &cache).unwrap();
-            assert_eq!(
-                (s1.tiles_cached, s1.frames_cached, s1.grids_cached),
-                (0, 0, 0)
-            );
-            // Each file's tile and decoded frame, and the grids.
-            assert_eq!(cache.len(), 11 + 11 + specs.len());
+            assert_eq!((s1.tiles_cached, s1.grids_cached), (0, 0));
+            assert_eq!(cache.len(), 11 + specs.len());
             // The same grids again: taken whole.
             let (second, s2) = stitch_files(&paths, &ids, &specs, &o, &cache).unwrap();
             assert_eq!((s2.tiles_cached, s2.grids_cached), (0, specs.len()));
@@ -499,23 +451,10 @@ mod tests {
                 assert_ne!(want3[k], *w);
             }
             assert_eq!(first[0].image_ids, ids[..specs[0].frames as usize].to_vec());
-            // Another plan of the same files: other tile sizes, resized from the decoded
-            // frames kept, and the same grids as without a cache (these tiles are small
-            // enough for a reduced DCT scale under the smaller `max_side`, so not the
-            // full decode's grids there).
-            let specs = plan(5, 1);
-            let (want, _) =
-                stitch_files(&paths[..5], &ids[..5], &specs, &o, &TileCache::new(0)).unwrap();
-            let want: Vec<Vec<u8>> = want.into_iter().map(|g| g.jpeg).collect();
-            let (g, s) = stitch_files(&paths[..5], &ids[..5], &specs, &o, &cache).unwrap();
-            // Under the default options every tile is decoded at full scale, in both
-            // layouts; under the smaller `max_side` the two layouts' tiles take other DCT
-            // scales, so no decoded frame fits.
-            let hits = if o == StitchOptions::default() { 5 } else { 0 };
-            assert_eq!(
-                (s.tiles_cached, s.frames_cached, s.grids_cached),
-                (0, hits, 0)
-            );
+            // Another plan of the same files reuses nothing it should not.
+            let specs = plan(5, 6);
+            let want = reference(&decoded[..5], &ids[..5], &specs, &o);
+            let (g, _) = stitch_files(&paths[..5], &ids[..5], &specs, &o, &cache).unwrap();
             assert!(g.iter().zip(&want).all(|(g, w)| g.jpeg == *w));
         }
     }
