@@ -120,11 +120,25 @@ pub fn cut_room_walls(
             v
         }
     };
+    // The points' extent on u and v: a wall farther from them than the search cannot
+    // hold any of them (no band is wider), and its context is not looked at.
+    let mut reach = [[f64::INFINITY, f64::NEG_INFINITY]; 2];
+    for q in points {
+        let (u, v) = room.turn(q.x, q.y);
+        for (r, c) in reach.iter_mut().zip([u, v]) {
+            r[0] = r[0].min(c);
+            r[1] = r[1].max(c);
+        }
+    }
     // (wall index, where this frame has it, half-width of the band cut).
     let walls: Vec<(usize, f64, f64)> = [room.u[0], room.u[1], room.v[0], room.v[1]]
         .into_iter()
         .enumerate()
         .filter_map(|(i, w)| w.filter(|_| room.faced[i]).map(|w| (i, w)))
+        .filter(|&(i, w)| {
+            let [lo, hi] = reach[i / 2];
+            w >= lo - 2.0 * p.room_wall_search && w <= hi + 2.0 * p.room_wall_search
+        })
         .map(|(i, w)| {
             let near: Vec<f64> = context
                 .iter()
