@@ -114,7 +114,7 @@ pub struct SupportParams {
     pub room_wall_cut: bool,
     /// How far (m) from the room's wall one frame's points may show it (the frame's pose
     /// error): the wall cut by `room_wall_cut` is the densest layer of the frame's context
-    /// within this distance.
+    /// within this distance. Also the widest band cut on either side of it.
     pub room_wall_search: f64,
 }
 

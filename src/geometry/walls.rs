@@ -86,8 +86,8 @@ pub fn cut_wall_leaks(
     (pts, cuts)
 }
 
-/// Remove from `points` those within one support layer (either side) of a wall of the
-/// room's box that a camera faced (`RoomLayout::faced`): an object that is not flat against
+/// Remove from `points` those within a band (either side) of a wall of the room's box that
+/// a camera faced (`RoomLayout::faced`): an object that is not flat against
 /// a wall has no surface on the wall's plane, so points there are the wall seen around or
 /// behind it (a floor lamp's thin pole in front of a wall fills little of its box; the
 /// segmenter grows over the wall that fills the rest). Not for classes flat against a
