@@ -83,7 +83,8 @@ impl TemplateKind {
                 "num_images",
                 "num_grids",
             ],
-            Self::InstanceSelection => &[
+            // Both show numbered candidates in one image and ask for one of them.
+            Self::InstanceSelection | Self::MarkSelection => &[
                 "query",
                 "target_class",
                 "image_id",
@@ -98,15 +99,6 @@ impl TemplateKind {
             }
             Self::FeedbackObjectIdInvalid => &["object_id", "valid_ids"],
             Self::FeedbackUnparsable => &["expected_keys"],
-            Self::MarkSelection => &[
-                "query",
-                "target_class",
-                "image_id",
-                "width",
-                "height",
-                "num_candidates",
-                "candidates",
-            ],
             Self::BoxRequest => &[
                 "query",
                 "target_class",
