@@ -27,7 +27,7 @@ use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
     cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
-    GeometryParams, Mask, RoomLayout, WallCut,
+    GeometryParams, LayoutParams, Mask, RoomLayout, WallCut,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -124,12 +124,20 @@ pub async fn room_layout(
     ctx: &JobContext,
     target_class: &str,
 ) -> Result<Option<Arc<RoomLayout>>, JobFailure> {
-    let params = g.params.geometry.clone();
+    let params = &g.params.geometry;
     if !params.layout.enabled || !params.support.is_flat(target_class) {
         return Ok(None);
     }
+    scene_room(ctx, params.layout.clone()).await
+}
+
+/// The scene's room box (estimated once per loaded scene, off the async threads).
+async fn scene_room(
+    ctx: &JobContext,
+    layout: LayoutParams,
+) -> Result<Option<Arc<RoomLayout>>, JobFailure> {
     let scene = ctx.scene.clone();
-    tokio::task::spawn_blocking(move || scene.room_layout(&params.layout))
+    tokio::task::spawn_blocking(move || scene.room_layout(&layout))
         .await
         .map_err(|e| JobFailure::new("internal", format!("layout task failed: {e}")))
 }
@@ -142,7 +150,7 @@ async fn room_walls(
     ctx: &JobContext,
     cut_walls: bool,
 ) -> Result<Option<Arc<RoomLayout>>, JobFailure> {
-    let params = g.params.geometry.clone();
+    let params = &g.params.geometry;
     if !cut_walls
         || !params.layout.enabled
         || !params.support.enabled
@@ -150,10 +158,7 @@ async fn room_walls(
     {
         return Ok(None);
     }
-    let scene = ctx.scene.clone();
-    tokio::task::spawn_blocking(move || scene.room_layout(&params.layout))
-        .await
-        .map_err(|e| JobFailure::new("internal", format!("layout task failed: {e}")))
+    scene_room(ctx, params.layout.clone()).await
 }
 
 /// The anchor frame with the empty depth pixels inside `bbox` filled from the other usable
