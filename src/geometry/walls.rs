@@ -140,12 +140,13 @@ pub fn cut_room_walls(
             w >= lo - 2.0 * p.room_wall_search && w <= hi + 2.0 * p.room_wall_search
         })
         .map(|(i, w)| {
-            let near: Vec<f64> = context
+            let mut near: Vec<f64> = context
                 .iter()
                 .map(|q| along(i, q))
                 .filter(|c| (c - w).abs() <= p.room_wall_search)
                 .collect();
-            match densest_layer(near.clone(), p.layer, p.min_points) {
+            near.sort_by(f64::total_cmp);
+            match densest_layer(&near, p.layer, p.min_points) {
                 Some(at) => {
                     let sigma = 1.4826 * median(near.iter().map(|c| (c - at).abs()).collect());
                     let band = (WALL_SPREADS * sigma).clamp(p.layer, p.room_wall_search);
@@ -198,10 +199,9 @@ fn median(mut values: Vec<f64>) -> f64 {
     *values.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
-/// The median of the most populous run of `values` no wider than `width`, when it holds at
-/// least `min` of them.
-fn densest_layer(mut values: Vec<f64>, width: f64, min: usize) -> Option<f64> {
-    values.sort_by(f64::total_cmp);
+/// The median of the most populous run of the sorted `values` no wider than `width`, when
+/// it holds at least `min` of them.
+fn densest_layer(values: &[f64], width: f64, min: usize) -> Option<f64> {
     let (mut best, mut start) = ((0, 0), 0);
     for end in 0..values.len() {
         while values[end] - values[start] > width {
