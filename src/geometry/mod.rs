@@ -32,6 +32,7 @@ pub mod support;
 pub(crate) mod test_grid;
 #[cfg(test)]
 pub(crate) mod test_scene;
+pub mod wall_colour;
 pub mod wall_sweep;
 pub mod walls;
 
@@ -60,4 +61,4 @@ pub use support::{
     context_points, extend_to_support, median_point, SupportExtension, SupportParams,
 };
 pub use wall_sweep::{sweep_wall, wall_moved, WallSweep, WallSweepParams};
-pub use walls::{cut_room_walls, cut_wall_leaks, WallCut};
+pub use walls::{cut_room_walls, cut_wall_leaks, PointColours, WallCut};

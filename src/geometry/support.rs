@@ -116,6 +116,9 @@ pub struct SupportParams {
     /// error): the wall cut by `room_wall_cut` is the densest layer of the frame's context
     /// within this distance. Also the widest band cut on either side of it.
     pub room_wall_search: f64,
+    /// Keep a point within a wall's band whose colour is unlike the wall's and like the
+    /// object's ([`super::wall_colour`]).
+    pub room_wall_colour: bool,
 }
 
 impl SupportParams {
@@ -189,6 +192,7 @@ impl Default for SupportParams {
             wall_cut: true,
             room_wall_cut: true,
             room_wall_search: 0.12,
+            room_wall_colour: true,
         }
     }
 }

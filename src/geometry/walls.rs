@@ -9,6 +9,7 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::support::find_layer;
+use super::wall_colour::ColourSplit;
 use super::{Aabb, RoomLayout, SupportParams};
 
 /// One wall whose points were cut from an object's cloud.
@@ -23,6 +24,10 @@ pub struct WallCut {
     pub wall: f64,
     /// Points removed.
     pub removed: usize,
+    /// Half-width (m) of the band cut about the wall.
+    pub band: f64,
+    /// Points within the band kept for a colour unlike the wall's ([`cut_room_walls`]).
+    pub kept_by_colour: usize,
 }
 
 /// Remove from `points` those within one support layer of a wall that the `context` shows
@@ -80,6 +85,8 @@ pub fn cut_wall_leaks(
             side: if sign < 0.0 { "min" } else { "max" },
             wall,
             removed,
+            band: p.layer,
+            kept_by_colour: 0,
         });
         pts = keep;
     }
@@ -101,11 +108,14 @@ pub fn cut_wall_leaks(
 /// (a robust standard deviation), at least `layer` and at most `room_wall_search`. Too
 /// few context points there: the box's wall, `layer` either side. Nothing is cut when
 /// fewer than `min_points` points would remain: then the mask holds nothing but wall, and
-/// no cut makes it the object.
+/// no cut makes it the object. Given the points' `colours` (and `room_wall_colour` on), a
+/// point in a band whose colour is unlike the wall's there and like the object's is kept
+/// ([`super::wall_colour`]): what stands within the wall's noise is told from it by colour.
 pub fn cut_room_walls(
     points: &[Point3<f64>],
     context: &[Point3<f64>],
     room: &RoomLayout,
+    colours: Option<PointColours<'_>>,
     p: &SupportParams,
 ) -> (Vec<Point3<f64>>, Vec<WallCut>) {
     if !p.enabled || !p.room_wall_cut {
@@ -159,31 +169,91 @@ pub fn cut_room_walls(
     if walls.is_empty() {
         return (points.to_vec(), Vec::new());
     }
-    let mut removed = [0usize; 4];
-    let mut keep = Vec::with_capacity(points.len());
-    for q in points {
-        match walls
+    // The wall whose band each point lies in, if any.
+    let in_band = |q: &Point3<f64>| {
+        walls
             .iter()
             .find(|&&(i, w, band)| (along(i, q) - w).abs() <= band)
-        {
-            Some(&(i, _, _)) => removed[i] += 1,
+            .map(|&(i, _, _)| i)
+    };
+    let bands: Vec<Option<usize>> = points.iter().map(in_band).collect();
+    let splits = colours
+        .filter(|c| p.room_wall_colour && c.points.len() == points.len())
+        .map(|c| colour_splits(c, context, &bands, &walls, &along, p));
+    let mut removed = [0usize; 4];
+    let mut by_colour = [0usize; 4];
+    let mut keep = Vec::with_capacity(points.len());
+    for (k, (q, band)) in points.iter().zip(&bands).enumerate() {
+        match band {
+            Some(i) => match (&splits, colours) {
+                (Some(s), Some(c)) if s[*i].as_ref().is_some_and(|s| s.is_object(c.points[k])) => {
+                    by_colour[*i] += 1;
+                    keep.push(*q);
+                }
+                _ => removed[*i] += 1,
+            },
             None => keep.push(*q),
         }
     }
-    if keep.len() == points.len() || keep.len() < p.min_points {
+    if removed.iter().sum::<usize>() == 0 || keep.len() < p.min_points {
         return (points.to_vec(), Vec::new());
     }
     let cuts = walls
         .iter()
-        .filter(|&&(i, _, _)| removed[i] > 0)
-        .map(|&(i, wall, _)| WallCut {
+        .filter(|&&(i, _, _)| removed[i] > 0 || by_colour[i] > 0)
+        .map(|&(i, wall, band)| WallCut {
             axis: if i < 2 { "u" } else { "v" },
             side: if i % 2 == 0 { "min" } else { "max" },
             wall,
             removed: removed[i],
+            band,
+            kept_by_colour: by_colour[i],
         })
         .collect();
     (keep, cuts)
+}
+
+/// The colours of the points given to [`cut_room_walls`] and of their context, in the same
+/// order (what the frame's colour image shows at each).
+#[derive(Debug, Clone, Copy)]
+pub struct PointColours<'a> {
+    pub points: &'a [[u8; 3]],
+    pub context: &'a [[u8; 3]],
+}
+
+/// For each wall with points in its band, its colours (the context within its band)
+/// against the object's (the points in no band); `None` where colour cannot tell them.
+fn colour_splits(
+    colours: PointColours<'_>,
+    context: &[Point3<f64>],
+    bands: &[Option<usize>],
+    walls: &[(usize, f64, f64)],
+    along: &dyn Fn(usize, &Point3<f64>) -> f64,
+    p: &SupportParams,
+) -> [Option<ColourSplit>; 4] {
+    let object: Vec<[u8; 3]> = bands
+        .iter()
+        .zip(colours.points)
+        .filter(|(b, _)| b.is_none())
+        .map(|(_, &c)| c)
+        .collect();
+    let mut out = [None, None, None, None];
+    if colours.context.len() != context.len() {
+        return out;
+    }
+    for &(i, w, band) in walls {
+        if !bands.contains(&Some(i)) {
+            continue;
+        }
+        let wall: Vec<[u8; 3]> = context
+            .iter()
+            .zip(colours.context)
+            .filter(|(q, _)| (along(i, q) - w).abs() <= band)
+            .map(|(_, &c)| c)
+            .collect();
+        out[i] = ColourSplit::new(&wall, &object, p.min_points);
+    }
+    out
 }
 
 /// The band [`cut_room_walls`] cuts about a wall, in robust standard deviations of the
@@ -312,7 +382,7 @@ mod tests {
             mask.extend(grid((0.8, 1.25), (0.0, 1.5), 0.01, |v, z| {
                 at(0.015 * ((v * 100.0).round() % 3.0 - 1.0), v, z)
             }));
-            let (kept, cuts) = cut_room_walls(&mask, &[], &r, &SupportParams::default());
+            let (kept, cuts) = cut_room_walls(&mask, &[], &r, None, &SupportParams::default());
             assert_eq!(kept.len(), pole.len(), "angle {angle}: {cuts:?}");
             for (a, b) in kept.iter().zip(&pole) {
                 assert!((a - b).norm() < 1e-12);
@@ -321,8 +391,13 @@ mod tests {
             assert_eq!((cuts[0].axis, cuts[0].side), ("u", "min"));
             assert_eq!(cuts[0].removed, mask.len() - pole.len());
             // A wall no camera faced is where the points end, not a measured plane: kept.
-            let (kept, cuts) =
-                cut_room_walls(&mask, &[], &room(angle, false), &SupportParams::default());
+            let (kept, cuts) = cut_room_walls(
+                &mask,
+                &[],
+                &room(angle, false),
+                None,
+                &SupportParams::default(),
+            );
             assert!(cuts.is_empty() && kept.len() == mask.len());
         }
     }
@@ -345,16 +420,16 @@ mod tests {
                 .filter(|q| !(q.y > 0.78 && q.y < 1.27 && q.z < 1.52))
                 .collect();
         let p = SupportParams::default();
-        let (kept, cuts) = cut_room_walls(&mask, &ctx, &r, &p);
+        let (kept, cuts) = cut_room_walls(&mask, &ctx, &r, None, &p);
         assert_eq!(kept.len(), pole.len(), "{cuts:?}");
         assert!((cuts[0].wall - off).abs() < 0.011, "{cuts:?}");
         // Without the context, the room's wall: most of the patch is left.
-        let (kept, _) = cut_room_walls(&mask, &[], &r, &p);
+        let (kept, _) = cut_room_walls(&mask, &[], &r, None, &p);
         assert!(kept.len() > pole.len() + (mask.len() - pole.len()) / 2);
         // A surface farther from the room's wall than `room_wall_search` is not taken for
         // it: the box's wall is used.
         let far: Vec<Point3<f64>> = ctx.iter().map(|q| Point3::new(0.3, q.y, q.z)).collect();
-        let (_, cuts) = cut_room_walls(&mask, &far, &r, &p);
+        let (_, cuts) = cut_room_walls(&mask, &far, &r, None, &p);
         assert!(cuts.iter().all(|c| c.wall == 0.0), "{cuts:?}");
     }
 
@@ -389,7 +464,7 @@ mod tests {
         let mut mask = pole.clone();
         mask.extend(&wall);
         let p = SupportParams::default();
-        let (kept, cuts) = cut_room_walls(&mask, &ctx, &r, &p);
+        let (kept, cuts) = cut_room_walls(&mask, &ctx, &r, None, &p);
         let left = kept.len() - pole.len();
         assert!(kept.iter().filter(|q| q.x > 0.29).count() == pole.len());
         assert!(
@@ -399,7 +474,7 @@ mod tests {
         );
         assert_eq!(cuts[0].removed, mask.len() - kept.len());
         // The fixed band of one layer (±4 cm) leaves the sixth of them beyond it.
-        let (kept, _) = cut_room_walls(&mask, &[], &r, &p);
+        let (kept, _) = cut_room_walls(&mask, &[], &r, None, &p);
         assert!((kept.len() - pole.len()) * 10 > wall.len());
     }
 
@@ -416,14 +491,14 @@ mod tests {
         }));
         let p = SupportParams::default();
         assert!(few.len() - wall.len() < p.min_points);
-        let (kept, cuts) = cut_room_walls(&few, &[], &r, &p);
+        let (kept, cuts) = cut_room_walls(&few, &[], &r, None, &p);
         assert!(cuts.is_empty() && kept.len() == few.len());
         // Enough remain: cut. Off, or with support completion off: not.
         let mut lamp = wall.clone();
         lamp.extend(grid((1.0, 1.03), (0.0, 1.5), 0.01, |y, z| {
             Point3::new(0.3, y, z)
         }));
-        assert_eq!(cut_room_walls(&lamp, &[], &r, &p).1.len(), 1);
+        assert_eq!(cut_room_walls(&lamp, &[], &r, None, &p).1.len(), 1);
         for off in [
             SupportParams {
                 room_wall_cut: false,
@@ -434,7 +509,7 @@ mod tests {
                 ..SupportParams::default()
             },
         ] {
-            let (kept, cuts) = cut_room_walls(&lamp, &[], &r, &off);
+            let (kept, cuts) = cut_room_walls(&lamp, &[], &r, None, &off);
             assert!(cuts.is_empty() && kept.len() == lamp.len());
         }
     }
