@@ -136,6 +136,13 @@ async fn points_on_a_wall_of_the_room_are_cut_from_an_object_that_is_not_flat() 
             continue;
         }
         cut += 1;
+        // Each cut says how wide its band was and what colour kept within it.
+        for c in cuts {
+            assert!(
+                c["band"].as_f64().is_some_and(|b| b > 0.0) && c["kept_by_colour"].is_u64(),
+                "{class}: {c}"
+            );
+        }
         // The object asked for: the instance of that class the box lies on.
         let (a, a_off) = (aabb(b), aabb(b_off));
         let gt = truth
