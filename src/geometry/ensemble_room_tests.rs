@@ -16,17 +16,7 @@ fn scene() -> Vec<Slab> {
 }
 
 fn layout() -> RoomLayout {
-    RoomLayout {
-        angle_deg: 0.0,
-        u: [Some(0.0), Some(10.0)],
-        v: [Some(0.0), Some(4.0)],
-        faced: [true; 4],
-        floor: Some(0.0),
-        ceiling: Some(2.7),
-        reach: [[0.0, 10.0], [0.0, 4.0], [0.0, 2.7]],
-        range: 5.0,
-        points: 1000,
-    }
+    crate::geometry::test_scene::room_box(0.0, 10.0, 4.0, 2.7)
 }
 
 #[test]

@@ -5,7 +5,7 @@ use nalgebra::{Matrix4, Point3, Vector3};
 
 use super::camera::{look_at_pose, transform_point};
 use super::depth_fill::color_pixel;
-use super::{DepthMap, FrameCamera, Intrinsics};
+use super::{DepthMap, FrameCamera, Intrinsics, RoomLayout};
 
 /// Colour 80x60, depth 40x30 (ratio rule, no depth K).
 pub(crate) fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
@@ -74,4 +74,20 @@ pub(crate) fn room_slabs(w: f64, d: f64, h: f64) -> Vec<([f64; 3], [f64; 3])> {
         ([-0.1, -0.1, 0.0], [w + 0.1, 0.0, h]),
         ([-0.1, d, 0.0], [w + 0.1, d + 0.1, h]),
     ]
+}
+
+/// The room [0, w] x [0, d] x [0, h] as `estimate_room` would give it, turned by `angle`
+/// degrees, every wall faced.
+pub(crate) fn room_box(angle: f64, w: f64, d: f64, h: f64) -> RoomLayout {
+    RoomLayout {
+        angle_deg: angle,
+        u: [Some(0.0), Some(w)],
+        v: [Some(0.0), Some(d)],
+        faced: [true; 4],
+        floor: Some(0.0),
+        ceiling: Some(h),
+        range: 5.0,
+        reach: [[0.0, w], [0.0, d], [0.0, h]],
+        points: 1000,
+    }
 }

@@ -113,19 +113,9 @@ mod tests {
     #[test]
     fn a_shade_within_the_band_of_its_wall_keeps_its_points_by_colour() {
         use crate::geometry::test_grid::grid;
-        use crate::geometry::{cut_room_walls, PointColours, RoomLayout, SupportParams};
+        use crate::geometry::{cut_room_walls, PointColours, SupportParams};
         use nalgebra::Point3;
-        let room = RoomLayout {
-            angle_deg: 0.0,
-            u: [Some(0.0), Some(4.0)],
-            v: [Some(0.0), Some(3.0)],
-            faced: [true; 4],
-            floor: Some(0.0),
-            ceiling: Some(2.5),
-            range: 5.0,
-            reach: [[0.0, 4.0], [0.0, 3.0], [0.0, 2.5]],
-            points: 1000,
-        };
+        let room = crate::geometry::test_scene::room_box(0.0, 4.0, 3.0, 2.5);
         // The wall x = 0 behind the mask and around it; a shade's side from 2 cm before
         // the wall out to 30 cm, its first 2–4 cm inside the wall's band (one layer).
         let patch = grid((0.8, 1.25), (0.0, 1.5), 0.01, |y, z| Point3::new(0.0, y, z));

@@ -354,17 +354,9 @@ mod tests {
     /// A 4 x 3 m room turned by `angle` degrees, its walls u = 0, 4 and v = 0, 3, all
     /// faced but the first when `first_faced` is false.
     fn room(angle: f64, first_faced: bool) -> RoomLayout {
-        RoomLayout {
-            angle_deg: angle,
-            u: [Some(0.0), Some(4.0)],
-            v: [Some(0.0), Some(3.0)],
-            faced: [first_faced, true, true, true],
-            floor: Some(0.0),
-            ceiling: Some(2.5),
-            range: 5.0,
-            reach: [[0.0, 4.0], [0.0, 3.0], [0.0, 2.5]],
-            points: 1000,
-        }
+        let mut r = crate::geometry::test_scene::room_box(angle, 4.0, 3.0, 2.5);
+        r.faced[0] = first_faced;
+        r
     }
 
     #[test]
