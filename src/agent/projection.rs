@@ -23,12 +23,12 @@ use super::{exports, ms, step, VlmGrounder};
 use crate::geometry::ensemble::{
     find_views_with_room, mask_points, single_view_box, CandidateFrame,
 };
-use crate::geometry::export::color_points;
+use crate::geometry::export::point_colours;
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
     cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
-    GeometryParams, LayoutParams, Mask, PointColours, RoomLayout, WallCut,
+    GeometryParams, LayoutParams, Mask, RoomLayout, WallCut,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::FrameData;
@@ -99,24 +99,10 @@ fn segment_points(
     let (points, wall_cuts) = if cut_walls {
         let (points, mut cuts) = match walls {
             Some(room) => {
-                // What the frame shows at each point, for telling by colour what stands
-                // within a wall's band.
-                let rgb = |pts: &[Point3<f64>]| -> Vec<[u8; 3]> {
-                    color_points(pts, &frame.camera, image, [0, 0, 0])
-                        .into_iter()
-                        .map(|(_, c)| c)
-                        .collect()
-                };
-                let (of_points, of_context) = if params.support.room_wall_colour {
-                    (rgb(&points), rgb(&context))
-                } else {
-                    (Vec::new(), Vec::new())
-                };
-                let colours = PointColours {
-                    points: &of_points,
-                    context: &of_context,
-                };
-                cut_room_walls(&points, &context, room, Some(colours), &params.support)
+                // What the frame shows at given points, for telling by colour what stands
+                // within a wall's band (looked up only when some point is in one).
+                let look = |pts: &[Point3<f64>]| point_colours(pts, &frame.camera, image, [0; 3]);
+                cut_room_walls(&points, &context, room, Some(&look), &params.support)
             }
             None => (points, Vec::new()),
         };

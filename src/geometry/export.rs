@@ -94,6 +94,20 @@ pub fn color_points(
     color: &image::RgbImage,
     fallback: [u8; 3],
 ) -> Vec<ColoredPoint> {
+    points
+        .iter()
+        .copied()
+        .zip(point_colours(points, cam, color, fallback))
+        .collect()
+}
+
+/// The colour of each of `points` (see [`color_points`]), in their order.
+pub fn point_colours(
+    points: &[Point3<f64>],
+    cam: &FrameCamera,
+    color: &image::RgbImage,
+    fallback: [u8; 3],
+) -> Vec<[u8; 3]> {
     let to_cam = cam
         .cam_to_out()
         .try_inverse()
@@ -103,7 +117,7 @@ pub fn color_points(
     points
         .iter()
         .map(|p| {
-            let rgb = to_cam
+            to_cam
                 .and_then(|m| cam.color.project(&transform_point(&m, p)))
                 .filter(|&(u, v, _)| u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5)
                 .map(|(u, v, _)| {
@@ -118,8 +132,7 @@ pub fn color_points(
                         )
                         .0
                 })
-                .unwrap_or(fallback);
-            (*p, rgb)
+                .unwrap_or(fallback)
         })
         .collect()
 }

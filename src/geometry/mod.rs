@@ -61,4 +61,4 @@ pub use support::{
     context_points, extend_to_support, median_point, SupportExtension, SupportParams,
 };
 pub use wall_sweep::{sweep_wall, wall_moved, WallSweep, WallSweepParams};
-pub use walls::{cut_room_walls, cut_wall_leaks, PointColours, WallCut};
+pub use walls::{cut_room_walls, cut_wall_leaks, ColourLookup, WallCut};

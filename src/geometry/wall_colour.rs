@@ -113,7 +113,7 @@ mod tests {
     #[test]
     fn a_shade_within_the_band_of_its_wall_keeps_its_points_by_colour() {
         use crate::geometry::test_grid::grid;
-        use crate::geometry::{cut_room_walls, PointColours, SupportParams};
+        use crate::geometry::{cut_room_walls, ColourLookup, SupportParams};
         use nalgebra::Point3;
         let room = crate::geometry::test_scene::room_box(0.0, 4.0, 3.0, 2.5);
         // The wall x = 0 behind the mask and around it; a shade's side from 2 cm before
@@ -128,29 +128,24 @@ mod tests {
                 .collect();
         let mut mask = patch.clone();
         mask.extend(&shade);
-        let grey = |i: usize| {
-            let g = 120 + (i % 41) as u8;
+        // The frame's colours: an unevenly lit grey wall; the shade yellow.
+        let grey = |q: &Point3<f64>| {
+            let g = 120 + ((q.y * 100.0 + q.z * 700.0).round() as usize % 41) as u8;
             [g, g, g - 4]
         };
-        let ctx_rgb: Vec<[u8; 3]> = (0..ctx.len()).map(grey).collect();
-        let yellow: Vec<[u8; 3]> = (0..mask.len())
-            .map(|i| {
-                if i < patch.len() {
-                    grey(i + 7)
-                } else {
-                    [200 + (i % 9) as u8, 170, 40]
-                }
-            })
-            .collect();
-        let p = SupportParams::default();
-        let cut = |rgb: Option<&[[u8; 3]]>, p: &SupportParams| {
-            let colours = rgb.map(|points| PointColours {
-                points,
-                context: &ctx_rgb,
-            });
-            cut_room_walls(&mask, &ctx, &room, colours, p)
+        let yellow = |q: &Point3<f64>| {
+            if q.x < 0.01 {
+                grey(q)
+            } else {
+                [200 + ((q.z * 100.0).round() as usize % 9) as u8, 170, 40]
+            }
         };
-        let (kept, cuts) = cut(Some(&yellow), &p);
+        let (by_yellow, by_grey) = (
+            |pts: &[Point3<f64>]| pts.iter().map(yellow).collect::<Vec<_>>(),
+            |pts: &[Point3<f64>]| pts.iter().map(grey).collect::<Vec<_>>(),
+        );
+        let p = SupportParams::default();
+        let (kept, cuts) = cut_room_walls(&mask, &ctx, &room, Some(&by_yellow), &p);
         assert_eq!(kept.len(), shade.len(), "{cuts:?}");
         assert_eq!(cuts[0].kept_by_colour, in_band, "{cuts:?}");
         assert!(in_band > 0);
@@ -159,13 +154,10 @@ mod tests {
             room_wall_colour: false,
             ..SupportParams::default()
         };
-        let greys: Vec<[u8; 3]> = (0..mask.len()).map(|i| grey(i + 7)).collect();
-        for (rgb, p) in [
-            (None, &p),
-            (Some(&yellow[..]), &off),
-            (Some(&greys[..]), &p),
-        ] {
-            let (kept, cuts) = cut(rgb, p);
+        let cases: [(Option<ColourLookup>, &SupportParams); 3] =
+            [(None, &p), (Some(&by_yellow), &off), (Some(&by_grey), &p)];
+        for (look, p) in cases {
+            let (kept, cuts) = cut_room_walls(&mask, &ctx, &room, look, p);
             assert_eq!(kept.len(), shade.len() - in_band, "{cuts:?}");
         }
     }

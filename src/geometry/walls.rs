@@ -108,14 +108,14 @@ pub fn cut_wall_leaks(
 /// (a robust standard deviation), at least `layer` and at most `room_wall_search`. Too
 /// few context points there: the box's wall, `layer` either side. Nothing is cut when
 /// fewer than `min_points` points would remain: then the mask holds nothing but wall, and
-/// no cut makes it the object. Given the points' `colours` (and `room_wall_colour` on), a
-/// point in a band whose colour is unlike the wall's there and like the object's is kept
+/// no cut makes it the object. Given a colour lookup `colour_of` (and `room_wall_colour`
+/// on), a point in a band whose colour is unlike the wall's there and like the object's is kept
 /// ([`super::wall_colour`]): what stands within the wall's noise is told from it by colour.
 pub fn cut_room_walls(
     points: &[Point3<f64>],
     context: &[Point3<f64>],
     room: &RoomLayout,
-    colours: Option<PointColours<'_>>,
+    colour_of: Option<ColourLookup<'_>>,
     p: &SupportParams,
 ) -> (Vec<Point3<f64>>, Vec<WallCut>) {
     if !p.enabled || !p.room_wall_cut {
@@ -177,21 +177,23 @@ pub fn cut_room_walls(
             .map(|&(i, _, _)| i)
     };
     let bands: Vec<Option<usize>> = points.iter().map(in_band).collect();
-    let splits = colours
-        .filter(|c| p.room_wall_colour && c.points.len() == points.len())
-        .map(|c| colour_splits(c, context, &bands, &walls, &along, p));
+    // Which band points colour keeps (empty when it cannot tell, or is not asked).
+    let by_colour_keep = match colour_of {
+        Some(look) if p.room_wall_colour && bands.iter().any(Option::is_some) => {
+            colour_keeps(look, points, context, &bands, &walls, &along, p)
+        }
+        _ => Vec::new(),
+    };
     let mut removed = [0usize; 4];
     let mut by_colour = [0usize; 4];
     let mut keep = Vec::with_capacity(points.len());
     for (k, (q, band)) in points.iter().zip(&bands).enumerate() {
         match band {
-            Some(i) => match (&splits, colours) {
-                (Some(s), Some(c)) if s[*i].as_ref().is_some_and(|s| s.is_object(c.points[k])) => {
-                    by_colour[*i] += 1;
-                    keep.push(*q);
-                }
-                _ => removed[*i] += 1,
-            },
+            Some(i) if by_colour_keep.get(k) == Some(&true) => {
+                by_colour[*i] += 1;
+                keep.push(*q);
+            }
+            Some(i) => removed[*i] += 1,
             None => keep.push(*q),
         }
     }
@@ -213,47 +215,53 @@ pub fn cut_room_walls(
     (keep, cuts)
 }
 
-/// The colours of the points given to [`cut_room_walls`] and of their context, in the same
-/// order (what the frame's colour image shows at each).
-#[derive(Debug, Clone, Copy)]
-pub struct PointColours<'a> {
-    pub points: &'a [[u8; 3]],
-    pub context: &'a [[u8; 3]],
-}
+/// What a frame's colour image shows at each of the given points, in their order
+/// (`geometry::export::point_colours` with the frame's camera and image).
+pub type ColourLookup<'a> = &'a dyn Fn(&[Point3<f64>]) -> Vec<[u8; 3]>;
 
-/// For each wall with points in its band, its colours (the context within its band)
-/// against the object's (the points in no band); `None` where colour cannot tell them.
-fn colour_splits(
-    colours: PointColours<'_>,
+/// For each point, whether it lies in a wall's band and colour says it is the object's:
+/// each wall with points in its band has its colours (the context within its band) set
+/// against the object's (the points in no band). Colours are looked up only for the
+/// points and the context in a band.
+fn colour_keeps(
+    look: ColourLookup<'_>,
+    points: &[Point3<f64>],
     context: &[Point3<f64>],
     bands: &[Option<usize>],
     walls: &[(usize, f64, f64)],
     along: &dyn Fn(usize, &Point3<f64>) -> f64,
     p: &SupportParams,
-) -> [Option<ColourSplit>; 4] {
+) -> Vec<bool> {
+    let colours = look(points);
+    if colours.len() != points.len() {
+        return Vec::new();
+    }
     let object: Vec<[u8; 3]> = bands
         .iter()
-        .zip(colours.points)
+        .zip(&colours)
         .filter(|(b, _)| b.is_none())
         .map(|(_, &c)| c)
         .collect();
-    let mut out = [None, None, None, None];
-    if colours.context.len() != context.len() {
-        return out;
-    }
+    let mut splits: [Option<ColourSplit>; 4] = [None, None, None, None];
     for &(i, w, band) in walls {
         if !bands.contains(&Some(i)) {
             continue;
         }
-        let wall: Vec<[u8; 3]> = context
+        let near: Vec<Point3<f64>> = context
             .iter()
-            .zip(colours.context)
-            .filter(|(q, _)| (along(i, q) - w).abs() <= band)
-            .map(|(_, &c)| c)
+            .filter(|q| (along(i, q) - w).abs() <= band)
+            .copied()
             .collect();
-        out[i] = ColourSplit::new(&wall, &object, p.min_points);
+        let wall = look(&near);
+        if wall.len() == near.len() {
+            splits[i] = ColourSplit::new(&wall, &object, p.min_points);
+        }
     }
-    out
+    bands
+        .iter()
+        .zip(&colours)
+        .map(|(b, &c)| b.is_some_and(|i| splits[i].as_ref().is_some_and(|s| s.is_object(c))))
+        .collect()
 }
 
 /// The band [`cut_room_walls`] cuts about a wall, in robust standard deviations of the
