@@ -53,6 +53,38 @@ pub enum BoxFrom {
     VlmBox,
 }
 
+/// View `i`'s box when it is only the reprojection of the part the chosen view saw
+/// (`partial`: the chosen view saw a part of the object; the view has no detection,
+/// candidate or VLM box of its own). Such a view's mask is that part alone: it speaks only
+/// inside this box, and around its mask lies the rest of the object (a window's glass
+/// beyond the part), not what the object stands on or against.
+pub fn part_only(
+    view_boxes: &[(usize, [f32; 4], BoxFrom)],
+    i: usize,
+    partial: bool,
+) -> Option<[f32; 4]> {
+    let &(_, b, from) = view_boxes.iter().find(|v| v.0 == i)?;
+    (partial && from == BoxFrom::Footprint).then_some(b)
+}
+
+/// The context points support completion looks at: the chosen view's (`anchor`), then
+/// those of each view in `views` (index, context) that `kept` (by the fusion) and whose
+/// box is not the part only (`part_only`).
+pub fn support_context<P: Copy>(
+    anchor: Vec<P>,
+    views: &[(usize, &[P])],
+    kept: impl Fn(usize) -> bool,
+    part_only: impl Fn(usize) -> bool,
+) -> Vec<P> {
+    let mut context = anchor;
+    for &(i, ctx) in views {
+        if kept(i) && !part_only(i) {
+            context.extend_from_slice(ctx);
+        }
+    }
+    context
+}
+
 /// Every frame's cached candidates, read once per job (one query for all the views), when
 /// candidates are on for the views; frames indexed without them are absent.
 async fn view_candidates(
@@ -137,6 +169,29 @@ pub async fn boxes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_view_that_segmented_only_the_part_gives_no_context_for_support() {
+        let vb = [
+            (3, [0.0, 0.0, 10.0, 10.0], BoxFrom::Footprint),
+            (5, [0.0, 0.0, 20.0, 20.0], BoxFrom::VlmBox),
+            (7, [0.0, 0.0, 30.0, 30.0], BoxFrom::Footprint),
+        ];
+        // Part-only: a footprint box, and only when the chosen view saw a part.
+        assert_eq!(part_only(&vb, 3, true), Some([0.0, 0.0, 10.0, 10.0]));
+        assert_eq!(part_only(&vb, 3, false), None);
+        assert_eq!(part_only(&vb, 5, true), None);
+        assert_eq!(part_only(&vb, 9, true), None);
+        let (a, v3, v5, v7) = ([0], [3, 3], [5], [7]);
+        let views: [(usize, &[i32]); 3] = [(3, &v3), (5, &v5), (7, &v7)];
+        let kept = |i: usize| i != 7;
+        for (partial, want) in [(true, vec![0, 5]), (false, vec![0, 3, 3, 5])] {
+            let ctx = support_context(a.to_vec(), &views, kept, |i| {
+                part_only(&vb, i, partial).is_some()
+            });
+            assert_eq!(ctx, want, "partial {partial}");
+        }
+    }
 
     #[test]
     fn detection_pick_prefers_containment_per_area() {

@@ -442,11 +442,9 @@ pub async fn run(
             };
             // A view that segmented only the reprojected part of a partly seen object
             // votes only inside that box.
-            let region = |i: usize| {
-                let &(_, b, from) = vb.iter().find(|v| v.0 == i)?;
-                (partial && from == BoxFrom::Footprint && params.consensus.footprints_vote_inside)
-                    .then_some(b)
-            };
+            let part_only = |i: usize| super::ensemble_boxes::part_only(&vb, i, partial);
+            let region =
+                |i: usize| part_only(i).filter(|_| params.consensus.footprints_vote_inside);
             let views: Vec<SegmentedView> = clouds
                 .iter()
                 .map(|(i, c)| SegmentedView {
@@ -470,13 +468,16 @@ pub async fn run(
             let votes = json!(votes);
             let fuse_ms = ms(tf);
             let tsup = Instant::now();
-            // Support completion sees around the anchor and every view the fusion kept.
-            let mut context = anchor_ctx;
-            for (i, c) in &clouds {
-                if fusion.views.iter().any(|v| v.index == *i && v.kept) {
-                    context.extend(c.context.iter().copied());
-                }
-            }
+            // Support completion sees around the anchor and every view the fusion kept,
+            // except those that segmented only the part (around it lies the object's rest).
+            let view_ctx: Vec<(usize, &[Point3<f64>])> =
+                clouds.iter().map(|(i, c)| (*i, &c.context[..])).collect();
+            let context = super::ensemble_boxes::support_context(
+                anchor_ctx,
+                &view_ctx,
+                |i| fusion.views.iter().any(|v| v.index == i && v.kept),
+                |i| part_only(i).is_some(),
+            );
             let anchor_kept: &[Point3<f64>] = &anchor_kept;
             let bulk = median_point(anchor_kept).unwrap_or_default();
             let support = fusion.aabb.map(|b| {
