@@ -180,7 +180,32 @@ async fn run(n: usize, color: (u32, u32)) -> anyhow::Result<()> {
                     .push(s["ms"].as_f64().unwrap_or(0.0));
             }
             if name == "summary" {
-                non_vlm.push(s["outputs"]["non_vlm_ms"].as_f64().unwrap_or(f64::NAN));
+                let ms = s["outputs"]["non_vlm_ms"].as_f64().unwrap_or(f64::NAN);
+                let stages: Vec<String> = job["trace"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .filter(|s| s["ms"].as_f64().unwrap_or(0.0) >= 10.0)
+                    .map(|s| {
+                        format!(
+                            "{} {:.0}",
+                            s["step"].as_str().unwrap_or("?"),
+                            s["ms"].as_f64().unwrap_or(0.0)
+                        )
+                    })
+                    .collect();
+                let proj = job["trace"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .find(|s| s["step"] == "projection")
+                    .map(|s| s["outputs"]["timings_ms"].to_string())
+                    .unwrap_or_default();
+                eprintln!(
+                    "query {k} ({class}, frame {frame}): non-VLM {ms:.1} ms; {}; projection {proj}",
+                    stages.join(", ")
+                );
+                non_vlm.push(ms);
             }
             if name == "stitching" {
                 extra

@@ -19,7 +19,9 @@
 //! 5. **groups**: object regions that touch in the image across a larger depth step
 //!    (`group_step` + `group_per_m` per metre): a lamp's shade and the pole behind it, a
 //!    chair's back and its seat seen over a table's edge. Offered beside their members;
-//! 6. **on walls**: wall cells joined by colour. The largest region of each wall is the
+//! 6. **on tops**: an object standing on a level top of its region (a box on a table of
+//!    its colour, a lamp on a nightstand), split from it by height (`tops`);
+//! 7. **on walls**: wall cells joined by colour. The largest region of each wall is the
 //!    wall; the others (pictures, windows, doors, boards) are candidates.
 //!
 //! Regions smaller than `min_cells` or larger than `max_extent` along any axis (what is left
@@ -27,6 +29,7 @@
 //! The result is at most `max_per_frame` boxes in colour pixels, largest first.
 
 mod grid;
+mod tops;
 
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
@@ -69,6 +72,19 @@ pub struct CandidateParams {
     pub group_step: f64,
     /// ...plus this much per metre of depth.
     pub group_per_m: f64,
+    /// Offer the objects that stand on a level top of their region as candidates of their
+    /// own (`tops`: what rises above the top over its footprint, where the top reaches past
+    /// it on both sides along an axis of the room).
+    pub tops: bool,
+    /// A cell is level when its surface normal is within this angle (degrees) of vertical.
+    pub top_level_deg: f64,
+    /// Height (m) above a top from which a cell stands on it...
+    pub top_lift: f64,
+    /// ...plus this much per metre of depth.
+    pub top_lift_per_m: f64,
+    /// How far (m) the top must reach past an object on both sides along an axis: a part
+    /// rising from the top's edge (a chair's back over its seat) is not an object on it.
+    pub top_inset: f64,
     /// Most candidates kept per frame (largest first).
     pub max_per_frame: usize,
     /// Box IoU above which the smaller of two candidates is dropped.
@@ -128,6 +144,11 @@ impl Default for CandidateParams {
             min_part: 0.02,
             group_step: 0.25,
             group_per_m: 0.05,
+            tops: true,
+            top_level_deg: 20.0,
+            top_lift: 0.02,
+            top_lift_per_m: 0.01,
+            top_inset: 0.05,
             max_per_frame: 24,
             dedupe_iou: 0.85,
             beside_detections: true,
@@ -152,6 +173,8 @@ pub enum CandidateKind {
     Part,
     /// Touching regions across a larger depth step.
     Group,
+    /// What stands on a level top of a region.
+    OnTop,
     /// A colour region on a wall.
     OnWall,
 }
@@ -163,6 +186,7 @@ impl CandidateKind {
             CandidateKind::Object => "object",
             CandidateKind::Part => "object part",
             CandidateKind::Group => "object group",
+            CandidateKind::OnTop => "object on a top",
             CandidateKind::OnWall => "on wall",
         }
     }
@@ -256,6 +280,22 @@ pub fn frame_candidates(
         for r in colour_split(&g, whole, p.colour_tol, least, 2) {
             if r.len() < whole.len() * 9 / 10 {
                 let c = to_candidate(&g, &r, CandidateKind::Part, dims);
+                if fits(&c) {
+                    out.push(c);
+                }
+            }
+        }
+    }
+    if p.tops {
+        let eye_z = crate::geometry::camera::transform_point(
+            &cam.cam_to_out(),
+            &nalgebra::Point3::origin(),
+        )
+        .z;
+        let angle = layout.map_or(0.0, |l| l.angle_deg);
+        for whole in object_regions.iter().filter(|r| r.len() >= 2 * p.min_cells) {
+            for r in tops::on_tops(&g, whole, eye_z, angle, p) {
+                let c = to_candidate(&g, &r, CandidateKind::OnTop, dims);
                 if fits(&c) {
                     out.push(c);
                 }

@@ -214,3 +214,82 @@ fn without_depth_or_room_nothing_is_proposed() {
     );
     assert!(c.is_empty(), "{c:?}");
 }
+
+/// A table with four legs, its top `top` and `colour`, as parts of instance `id`.
+fn table(lo: [f64; 2], hi: [f64; 2], top: f64, colour: [u8; 3], id: u16) -> Vec<Part> {
+    let leg = 0.05;
+    let mut out = vec![part(
+        [lo[0], lo[1], top - 0.04],
+        [hi[0], hi[1], top],
+        colour,
+        id,
+    )];
+    for (x, y) in [
+        (lo[0], lo[1]),
+        (hi[0] - leg, lo[1]),
+        (lo[0], hi[1] - leg),
+        (hi[0] - leg, hi[1] - leg),
+    ] {
+        out.push(part(
+            [x, y, 0.0],
+            [x + leg, y + leg, top - 0.04],
+            colour,
+            id,
+        ));
+    }
+    out
+}
+
+#[test]
+fn a_box_on_a_table_of_its_colour_is_a_candidate_of_its_own() {
+    let white = [210, 210, 205];
+    let mut parts = room();
+    parts.extend(table([1.2, 2.4], [2.8, 3.4], 0.75, white, 1));
+    parts.push(part([1.8, 2.7, 0.75], [2.2, 3.0, 0.95], white, 2));
+    let cam = camera([2.0, 0.8, 1.6], [2.0, 2.9, 0.8]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 2);
+    let c = cands
+        .iter()
+        .max_by(|a, b| box_iou(&a.bbox, &truth).total_cmp(&box_iou(&b.bbox, &truth)))
+        .expect("some candidate");
+    assert!(
+        box_iou(&c.bbox, &truth) > 0.7 && c.kind == CandidateKind::OnTop,
+        "{c:?} against the box {truth:?}: {cands:?}"
+    );
+    // With `tops` off, depth and colour alone give box and table as one region.
+    let (depth, img, _) = render(&cam, &parts);
+    let p = CandidateParams {
+        tops: false,
+        ..CandidateParams::default()
+    };
+    let lp = LayoutParams::default();
+    let off = frame_candidates(&cam, &depth, &img, Some(&layout()), &lp, &p);
+    assert!(best_iou(&off, &truth) < 0.5, "{off:?}");
+}
+
+#[test]
+fn a_chair_back_over_its_seat_is_not_an_object_on_it() {
+    let brown = [120, 70, 30];
+    let mut parts = room();
+    let leg = 0.04;
+    parts.push(part([1.7, 2.6, 0.42], [2.3, 3.1, 0.47], brown, 1));
+    parts.push(part([1.7, 3.05, 0.47], [2.3, 3.1, 1.0], brown, 1));
+    for (x, y) in [
+        (1.7, 2.6),
+        (2.3 - leg, 2.6),
+        (1.7, 3.1 - leg),
+        (2.3 - leg, 3.1 - leg),
+    ] {
+        parts.push(part([x, y, 0.0], [x + leg, y + leg, 0.42], brown, 1));
+    }
+    let cam = camera([2.0, 1.2, 1.5], [2.0, 2.8, 0.6]);
+    let (cands, ids) = run(&cam, &parts);
+    assert!(
+        cands.iter().all(|c| c.kind != CandidateKind::OnTop),
+        "{cands:?}"
+    );
+    // The chair itself is still a candidate.
+    let truth = truth_box(&ids, 320, 1);
+    assert!(best_iou(&cands, &truth) > 0.8, "{cands:?}");
+}

@@ -1,0 +1,148 @@
+//! Objects standing on a level top: a box on a table, a lamp on a nightstand, a pillow on
+//! a bed, a monitor on a desk. Depth joins them to what they stand on (nothing separates
+//! the box's bottom from the table top it rests on), and colour does not when both are one
+//! colour, so the object region holds the two as one.
+//!
+//! Within an object region, a *top* is a patch of level cells (the surface normal within
+//! `top_level_deg` of vertical) at one height, seen from above. The region's cells that
+//! rise more than `top_lift` (+ `top_lift_per_m` per metre of depth) above it, over its
+//! footprint, form connected pieces; a piece is a candidate of its own when the top
+//! reaches past it by `top_inset` on both sides along some horizontal axis of the room.
+//! That last rule tells an object standing *on* a top from a part of the same object that
+//! rises from the top's edge: a chair's back over its seat, a bed's headboard, a sofa's
+//! back. Such a part runs along one edge of the top, and every edge of a rectangle holds
+//! the rectangle's extreme corner along each axis, whatever its turn.
+
+use nalgebra::{Point3, Vector3};
+
+use super::grid::{components, Cell, Grid, Sets};
+use super::CandidateParams;
+
+/// Most tops looked at per region (the largest).
+const MAX_TOPS: usize = 4;
+
+/// The surface normal of cell `i` of `member` cells, from the cells `k` to either side
+/// (central differences where both are members, else one-sided); `None` at a region's
+/// thin end.
+fn normal(g: &Grid, member: &[bool], i: usize, k: usize) -> Option<Vector3<f64>> {
+    let (x, y) = (i % g.w, i / g.w);
+    let at = |dx: isize, dy: isize| -> Option<usize> {
+        let (nx, ny) = (x as isize + dx, y as isize + dy);
+        if nx < 0 || ny < 0 || nx as usize >= g.w || ny as usize >= g.h {
+            return None;
+        }
+        let j = ny as usize * g.w + nx as usize;
+        member[j].then_some(j)
+    };
+    let k = k as isize;
+    let diff = |a: Option<usize>, b: Option<usize>| -> Option<Vector3<f64>> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(g.pts[b] - g.pts[a]),
+            (None, Some(b)) => Some(g.pts[b] - g.pts[i]),
+            (Some(a), None) => Some(g.pts[i] - g.pts[a]),
+            (None, None) => None,
+        }
+    };
+    let du = diff(at(-k, 0), at(k, 0))?;
+    let dv = diff(at(0, -k), at(0, k))?;
+    let n = du.cross(&dv);
+    let len = n.norm();
+    (len > 1e-12).then(|| n / len)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Horizontal extent of `pts` along the room's axes (turned by `angle_deg` about +z):
+/// [[u lo, u hi], [v lo, v hi]].
+fn extent<'a>(pts: impl Iterator<Item = &'a Point3<f64>>, angle_deg: f64) -> [[f64; 2]; 2] {
+    let (s, c) = angle_deg.to_radians().sin_cos();
+    let mut e = [[f64::INFINITY, f64::NEG_INFINITY]; 2];
+    for p in pts {
+        let uv = [c * p.x + s * p.y, -s * p.x + c * p.y];
+        for (a, &t) in e.iter_mut().zip(&uv) {
+            a[0] = a[0].min(t);
+            a[1] = a[1].max(t);
+        }
+    }
+    e
+}
+
+/// The pieces of the object region `region` that stand on one of its level tops (see the
+/// module docs), as cell lists. `eye_z` is the camera's height (a top must be seen from
+/// above: a shelf board seen from below shows its underside), `angle_deg` the turn of the
+/// room's axes.
+pub(super) fn on_tops(
+    g: &Grid,
+    region: &[usize],
+    eye_z: f64,
+    angle_deg: f64,
+    p: &CandidateParams,
+) -> Vec<Vec<usize>> {
+    let n = g.w * g.h;
+    let mut member = vec![false; n];
+    for &i in region {
+        member[i] = g.kind[i] == Cell::Free;
+    }
+    let cos_level = p.top_level_deg.to_radians().cos();
+    let mut level = vec![false; n];
+    for &i in region {
+        level[i] = normal(g, &member, i, 2).is_some_and(|v| v.z.abs() >= cos_level);
+    }
+    // Level cells at one height form a top (a box's own top is level too, at its height).
+    let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
+    let mut sets = Sets::new(n);
+    for &i in region.iter().filter(|&&i| level[i]) {
+        let (x, y) = (i % g.w, i / g.w);
+        for j in [(x + 1 < g.w).then(|| i + 1), (y + 1 < g.h).then(|| i + g.w)]
+            .into_iter()
+            .flatten()
+        {
+            if level[j] && (g.pts[i].z - g.pts[j].z).abs() < lift(i).min(lift(j)) {
+                sets.join(i, j);
+            }
+        }
+    }
+    let mut tops: Vec<Vec<usize>> = {
+        let mut by_root: std::collections::HashMap<usize, Vec<usize>> = Default::default();
+        for &i in region.iter().filter(|&&i| level[i]) {
+            by_root.entry(sets.find(i)).or_default().push(i);
+        }
+        by_root
+            .into_values()
+            .filter(|t| t.len() >= p.min_cells)
+            .collect()
+    };
+    tops.sort_by_key(|t| std::cmp::Reverse(t.len()));
+    let mut out = Vec::new();
+    for top in tops.iter().take(MAX_TOPS) {
+        let h = median(top.iter().map(|&i| g.pts[i].z).collect());
+        if eye_z <= h + p.top_lift {
+            continue;
+        }
+        let te = extent(top.iter().map(|&i| &g.pts[i]), angle_deg);
+        let over = |q: &Point3<f64>| {
+            let e = extent(std::iter::once(q), angle_deg);
+            (0..2).all(|a| e[a][0] >= te[a][0] - p.top_inset && e[a][1] <= te[a][1] + p.top_inset)
+        };
+        let above: Vec<usize> = region
+            .iter()
+            .copied()
+            .filter(|&i| member[i] && g.pts[i].z > h + lift(i) && over(&g.pts[i]))
+            .collect();
+        for piece in components(g, &above) {
+            if piece.len() < p.min_cells || piece.len() * 10 >= region.len() * 9 {
+                continue;
+            }
+            let pe = extent(piece.iter().map(|&i| &g.pts[i]), angle_deg);
+            let inside = (0..2)
+                .any(|a| pe[a][0] >= te[a][0] + p.top_inset && pe[a][1] <= te[a][1] - p.top_inset);
+            if inside {
+                out.push(piece);
+            }
+        }
+    }
+    out
+}
