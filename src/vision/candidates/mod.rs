@@ -293,12 +293,10 @@ pub fn frame_candidates(
         )
         .z;
         let angle = layout.map_or(0.0, |l| l.angle_deg);
-        for whole in object_regions.iter().filter(|r| r.len() >= 2 * p.min_cells) {
-            for r in tops::on_tops(&g, whole, eye_z, angle, p) {
-                let c = to_candidate(&g, &r, CandidateKind::OnTop, dims);
-                if fits(&c) {
-                    out.push(c);
-                }
+        for r in tops::on_tops(&g, &object_regions, &object_of, eye_z, angle, p) {
+            let c = to_candidate(&g, &r, CandidateKind::OnTop, dims);
+            if fits(&c) {
+                out.push(c);
             }
         }
     }

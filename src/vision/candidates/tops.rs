@@ -15,16 +15,19 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::grid::{components, Cell, Grid, Sets};
+use std::collections::BTreeMap;
+
+use super::grid::{components, pairs, Grid, Sets};
 use super::CandidateParams;
 
 /// Most tops looked at per region (the largest).
 const MAX_TOPS: usize = 4;
 
-/// The surface normal of cell `i` of `member` cells, from the cells `k` to either side
-/// (central differences where both are members, else one-sided); `None` at a region's
-/// thin end.
-fn normal(g: &Grid, member: &[bool], i: usize, k: usize) -> Option<Vector3<f64>> {
+/// The surface normal of cell `i` of region `k` (`object_of`), from the region's cells
+/// two steps to either side (central differences where both are in it, else one-sided);
+/// `None` at a region's thin end.
+fn normal(g: &Grid, object_of: &[usize], k: usize, i: usize) -> Option<Vector3<f64>> {
+    const STEP: isize = 2;
     let (x, y) = (i % g.w, i / g.w);
     let at = |dx: isize, dy: isize| -> Option<usize> {
         let (nx, ny) = (x as isize + dx, y as isize + dy);
@@ -32,9 +35,8 @@ fn normal(g: &Grid, member: &[bool], i: usize, k: usize) -> Option<Vector3<f64>>
             return None;
         }
         let j = ny as usize * g.w + nx as usize;
-        member[j].then_some(j)
+        (object_of[j] == k).then_some(j)
     };
-    let k = k as isize;
     let diff = |a: Option<usize>, b: Option<usize>| -> Option<Vector3<f64>> {
         match (a, b) {
             (Some(a), Some(b)) => Some(g.pts[b] - g.pts[a]),
@@ -43,8 +45,8 @@ fn normal(g: &Grid, member: &[bool], i: usize, k: usize) -> Option<Vector3<f64>>
             (None, None) => None,
         }
     };
-    let du = diff(at(-k, 0), at(k, 0))?;
-    let dv = diff(at(0, -k), at(0, k))?;
+    let du = diff(at(-STEP, 0), at(STEP, 0))?;
+    let dv = diff(at(0, -STEP), at(0, STEP))?;
     let n = du.cross(&dv);
     let len = n.norm();
     (len > 1e-12).then(|| n / len)
@@ -70,79 +72,92 @@ fn extent<'a>(pts: impl Iterator<Item = &'a Point3<f64>>, angle_deg: f64) -> [[f
     e
 }
 
-/// The pieces of the object region `region` that stand on one of its level tops (see the
-/// module docs), as cell lists. `eye_z` is the camera's height (a top must be seen from
-/// above: a shelf board seen from below shows its underside), `angle_deg` the turn of the
-/// room's axes.
+/// The pieces of the object regions `regions` (cell `i` in region `object_of[i]`, or
+/// `usize::MAX`) that stand on one of their level tops (see the module docs), as cell
+/// lists. Only regions of at least `2 * min_cells` are looked at. `eye_z` is the camera's
+/// height (a top must be seen from above: a shelf board seen from below shows its
+/// underside), `angle_deg` the turn of the room's axes.
 pub(super) fn on_tops(
     g: &Grid,
-    region: &[usize],
+    regions: &[Vec<usize>],
+    object_of: &[usize],
     eye_z: f64,
     angle_deg: f64,
     p: &CandidateParams,
 ) -> Vec<Vec<usize>> {
     let n = g.w * g.h;
-    let mut member = vec![false; n];
-    for &i in region {
-        member[i] = g.kind[i] == Cell::Free;
-    }
+    let big = |k: usize| regions[k].len() >= 2 * p.min_cells;
     let cos_level = p.top_level_deg.to_radians().cos();
     let mut level = vec![false; n];
-    for &i in region {
-        level[i] = normal(g, &member, i, 2).is_some_and(|v| v.z.abs() >= cos_level);
+    for (k, r) in regions.iter().enumerate().filter(|(k, _)| big(*k)) {
+        for &i in r {
+            level[i] = normal(g, object_of, k, i).is_some_and(|v| v.z.abs() >= cos_level);
+        }
     }
-    // Level cells at one height form a top (a box's own top is level too, at its height).
+    // Level cells of one region at one height form a top (a box's own top is level too,
+    // at its height).
     let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
     let mut sets = Sets::new(n);
-    for &i in region.iter().filter(|&&i| level[i]) {
-        let (x, y) = (i % g.w, i / g.w);
-        for j in [(x + 1 < g.w).then(|| i + 1), (y + 1 < g.h).then(|| i + g.w)]
-            .into_iter()
-            .flatten()
+    for (a, b) in pairs(g.w, g.h) {
+        if level[a]
+            && level[b]
+            && object_of[a] == object_of[b]
+            && (g.pts[a].z - g.pts[b].z).abs() < lift(a).min(lift(b))
         {
-            if level[j] && (g.pts[i].z - g.pts[j].z).abs() < lift(i).min(lift(j)) {
-                sets.join(i, j);
-            }
+            sets.join(a, b);
         }
     }
-    let mut tops: Vec<Vec<usize>> = {
-        let mut by_root: std::collections::HashMap<usize, Vec<usize>> = Default::default();
-        for &i in region.iter().filter(|&&i| level[i]) {
-            by_root.entry(sets.find(i)).or_default().push(i);
-        }
-        by_root
-            .into_values()
-            .filter(|t| t.len() >= p.min_cells)
-            .collect()
-    };
-    tops.sort_by_key(|t| std::cmp::Reverse(t.len()));
+    let mut tops_of: BTreeMap<usize, Vec<Vec<usize>>> = BTreeMap::new();
+    let mut by_root: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for i in (0..n).filter(|&i| level[i]) {
+        by_root.entry(sets.find(i)).or_default().push(i);
+    }
+    for top in by_root.into_values().filter(|t| t.len() >= p.min_cells) {
+        tops_of.entry(object_of[top[0]]).or_default().push(top);
+    }
     let mut out = Vec::new();
-    for top in tops.iter().take(MAX_TOPS) {
-        let h = median(top.iter().map(|&i| g.pts[i].z).collect());
-        if eye_z <= h + p.top_lift {
-            continue;
-        }
-        let te = extent(top.iter().map(|&i| &g.pts[i]), angle_deg);
-        let over = |q: &Point3<f64>| {
-            let e = extent(std::iter::once(q), angle_deg);
-            (0..2).all(|a| e[a][0] >= te[a][0] - p.top_inset && e[a][1] <= te[a][1] + p.top_inset)
-        };
-        let above: Vec<usize> = region
-            .iter()
-            .copied()
-            .filter(|&i| member[i] && g.pts[i].z > h + lift(i) && over(&g.pts[i]))
-            .collect();
-        for piece in components(g, &above) {
-            if piece.len() < p.min_cells || piece.len() * 10 >= region.len() * 9 {
-                continue;
-            }
-            let pe = extent(piece.iter().map(|&i| &g.pts[i]), angle_deg);
-            let inside = (0..2)
-                .any(|a| pe[a][0] >= te[a][0] + p.top_inset && pe[a][1] <= te[a][1] - p.top_inset);
-            if inside {
-                out.push(piece);
-            }
+    for (k, mut tops) in tops_of {
+        let region = &regions[k];
+        tops.sort_by_key(|t| std::cmp::Reverse(t.len()));
+        for top in tops.iter().take(MAX_TOPS) {
+            out.extend(standing_on(g, region, top, eye_z, angle_deg, p));
         }
     }
     out
+}
+
+/// The pieces of `region` that stand on its level `top` (see the module docs).
+fn standing_on(
+    g: &Grid,
+    region: &[usize],
+    top: &[usize],
+    eye_z: f64,
+    angle_deg: f64,
+    p: &CandidateParams,
+) -> Vec<Vec<usize>> {
+    let h = median(top.iter().map(|&i| g.pts[i].z).collect());
+    if eye_z <= h + p.top_lift {
+        return Vec::new();
+    }
+    let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
+    let te = extent(top.iter().map(|&i| &g.pts[i]), angle_deg);
+    let over = |q: &Point3<f64>| {
+        let e = extent(std::iter::once(q), angle_deg);
+        (0..2).all(|a| e[a][0] >= te[a][0] - p.top_inset && e[a][1] <= te[a][1] + p.top_inset)
+    };
+    let above: Vec<usize> = region
+        .iter()
+        .copied()
+        .filter(|&i| g.pts[i].z > h + lift(i) && over(&g.pts[i]))
+        .collect();
+    components(g, &above)
+        .into_iter()
+        .filter(|piece| {
+            if piece.len() < p.min_cells || piece.len() * 10 >= region.len() * 9 {
+                return false;
+            }
+            let pe = extent(piece.iter().map(|&i| &g.pts[i]), angle_deg);
+            (0..2).any(|a| pe[a][0] >= te[a][0] + p.top_inset && pe[a][1] <= te[a][1] - p.top_inset)
+        })
+        .collect()
 }
