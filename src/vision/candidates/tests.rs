@@ -128,6 +128,13 @@ fn best_iou(cands: &[Candidate], truth: &[f32; 4]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The candidate whose box best overlaps `truth`.
+fn best<'a>(cands: &'a [Candidate], truth: &[f32; 4]) -> Option<&'a Candidate> {
+    cands
+        .iter()
+        .max_by(|a, b| box_iou(&a.bbox, truth).total_cmp(&box_iou(&b.bbox, truth)))
+}
+
 fn run(cam: &FrameCamera, parts: &[Part]) -> (Vec<Candidate>, Vec<u16>) {
     let (depth, img, ids) = render(cam, parts);
     let c = frame_candidates(
@@ -189,10 +196,7 @@ fn a_picture_on_a_wall_is_a_candidate() {
     let cam = camera([2.0, 1.5, 1.4], [2.0, 4.0, 1.4]);
     let (cands, ids) = run(&cam, &parts);
     let truth = truth_box(&ids, 320, 9);
-    let c = cands
-        .iter()
-        .max_by(|a, b| box_iou(&a.bbox, &truth).total_cmp(&box_iou(&b.bbox, &truth)))
-        .expect("some candidate");
+    let c = best(&cands, &truth).expect("some candidate");
     assert!(
         box_iou(&c.bbox, &truth) > 0.7 && c.kind == CandidateKind::OnWall,
         "{c:?} against {truth:?}"
@@ -249,10 +253,7 @@ fn a_box_on_a_table_of_its_colour_is_a_candidate_of_its_own() {
     let cam = camera([2.0, 0.8, 1.6], [2.0, 2.9, 0.8]);
     let (cands, ids) = run(&cam, &parts);
     let truth = truth_box(&ids, 320, 2);
-    let c = cands
-        .iter()
-        .max_by(|a, b| box_iou(&a.bbox, &truth).total_cmp(&box_iou(&b.bbox, &truth)))
-        .expect("some candidate");
+    let c = best(&cands, &truth).expect("some candidate");
     assert!(
         box_iou(&c.bbox, &truth) > 0.7 && c.kind == CandidateKind::OnTop,
         "{c:?} against the box {truth:?}: {cands:?}"
