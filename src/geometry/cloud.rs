@@ -44,6 +44,15 @@ pub(crate) fn floor_i64(x: f64) -> i64 {
     }
 }
 
+/// Median of `v` (the upper one of an even count); `v` is reordered. Empty: 0.
+pub fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// One point per occupied voxel of side `voxel` (the centroid of that voxel's points),
 /// in order of first occurrence. `voxel <= 0` returns the input unchanged.
 pub fn voxel_downsample(points: &[Point3<f64>], voxel: f64) -> Vec<Point3<f64>> {

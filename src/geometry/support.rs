@@ -28,7 +28,7 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 
-use super::cloud::voxel_downsample;
+use super::cloud::{median, voxel_downsample};
 use super::mask::pixel_box;
 use super::morph::dilate_square_within;
 use super::projection::{
@@ -257,15 +257,6 @@ pub fn context_points(
     };
     let pts = backproject_mask_within(&region, [x0, y0, x1, y1], cam, depth, opts)?;
     Ok(voxel_downsample(&pts, p.voxel))
-}
-
-/// Median of `v` (the upper one of an even count); `v` is reordered. Empty: 0.
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {

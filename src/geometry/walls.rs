@@ -8,6 +8,7 @@
 use nalgebra::Point3;
 use serde::Serialize;
 
+use super::cloud::median;
 use super::support::find_layer;
 use super::wall_colour::ColourSplit;
 use super::{Aabb, RoomLayout, SupportParams};
@@ -158,7 +159,8 @@ pub fn cut_room_walls(
             near.sort_by(f64::total_cmp);
             match densest_layer(&near, p.layer, p.min_points) {
                 Some(at) => {
-                    let sigma = 1.4826 * median(near.iter().map(|c| (c - at).abs()).collect());
+                    let sigma = 1.4826
+                        * median(&mut near.iter().map(|c| (c - at).abs()).collect::<Vec<f64>>());
                     let band = (WALL_SPREADS * sigma).clamp(p.layer, p.room_wall_search);
                     (i, at, band)
                 }
@@ -267,15 +269,6 @@ fn colour_keeps(
 /// The band [`cut_room_walls`] cuts about a wall, in robust standard deviations of the
 /// frame's wall points: nearly all of a normally spread layer.
 pub const WALL_SPREADS: f64 = 2.5;
-
-/// The median of `values` (0 when empty).
-fn median(mut values: Vec<f64>) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mid = values.len() / 2;
-    *values.select_nth_unstable_by(mid, f64::total_cmp).1
-}
 
 /// The median of the most populous run of the sorted `values` no wider than `width`, when
 /// it holds at least `min` of them.

@@ -181,13 +181,14 @@ pub(super) fn pairs(w: usize, h: usize) -> impl Iterator<Item = (usize, usize)> 
     })
 }
 
-/// The regions of `sets` among the cells `member` selects, as lists of cell indices.
+/// The regions of `sets` among the cells `member` selects, as lists of cell indices,
+/// largest first (equal sizes in the order of their roots, so the same every run).
 pub(super) fn regions(
     sets: &mut Sets,
     member: impl Fn(usize) -> bool,
     n: usize,
 ) -> Vec<Vec<usize>> {
-    let mut by_root: std::collections::HashMap<usize, Vec<usize>> = Default::default();
+    let mut by_root: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
     for i in (0..n).filter(|&i| member(i)) {
         by_root.entry(sets.find(i)).or_default().push(i);
     }

@@ -17,7 +17,9 @@ use nalgebra::{Point3, Vector3};
 
 use std::collections::BTreeMap;
 
-use super::grid::{components, pairs, Grid, Sets};
+use crate::geometry::cloud::median;
+
+use super::grid::{components, pairs, regions as grid_regions, Grid, Sets};
 use super::CandidateParams;
 
 /// Most tops looked at per region (the largest).
@@ -52,19 +54,18 @@ fn normal(g: &Grid, object_of: &[usize], k: usize, i: usize) -> Option<Vector3<f
     (len > 1e-12).then(|| n / len)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+/// A point's horizontal coordinates along the room's axes, turned by the angle whose
+/// (sine, cosine) is `sc` about +z.
+fn room_uv(p: &Point3<f64>, (s, c): (f64, f64)) -> [f64; 2] {
+    [c * p.x + s * p.y, -s * p.x + c * p.y]
 }
 
-/// Horizontal extent of `pts` along the room's axes (turned by `angle_deg` about +z):
-/// [[u lo, u hi], [v lo, v hi]].
-fn extent<'a>(pts: impl Iterator<Item = &'a Point3<f64>>, angle_deg: f64) -> [[f64; 2]; 2] {
-    let (s, c) = angle_deg.to_radians().sin_cos();
+/// Horizontal extent of `pts` along the room's axes ([`room_uv`]): [[u lo, u hi], [v lo,
+/// v hi]].
+fn extent<'a>(pts: impl Iterator<Item = &'a Point3<f64>>, sc: (f64, f64)) -> [[f64; 2]; 2] {
     let mut e = [[f64::INFINITY, f64::NEG_INFINITY]; 2];
     for p in pts {
-        let uv = [c * p.x + s * p.y, -s * p.x + c * p.y];
-        for (a, &t) in e.iter_mut().zip(&uv) {
+        for (a, t) in e.iter_mut().zip(room_uv(p, sc)) {
             a[0] = a[0].min(t);
             a[1] = a[1].max(t);
         }
@@ -107,18 +108,16 @@ pub(super) fn on_tops(
             sets.join(a, b);
         }
     }
+    // Largest first (`grid::regions`), so each region's list is too.
     let mut tops_of: BTreeMap<usize, Vec<Vec<usize>>> = BTreeMap::new();
-    let mut by_root: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
-    for i in (0..n).filter(|&i| level[i]) {
-        by_root.entry(sets.find(i)).or_default().push(i);
-    }
-    for top in by_root.into_values().filter(|t| t.len() >= p.min_cells) {
-        tops_of.entry(object_of[top[0]]).or_default().push(top);
+    for top in grid_regions(&mut sets, |i| level[i], n) {
+        if top.len() >= p.min_cells {
+            tops_of.entry(object_of[top[0]]).or_default().push(top);
+        }
     }
     let mut out = Vec::new();
-    for (k, mut tops) in tops_of {
+    for (k, tops) in tops_of {
         let region = &regions[k];
-        tops.sort_by_key(|t| std::cmp::Reverse(t.len()));
         for top in tops.iter().take(MAX_TOPS) {
             out.extend(standing_on(g, region, top, eye_z, angle_deg, p));
         }
@@ -135,15 +134,16 @@ fn standing_on(
     angle_deg: f64,
     p: &CandidateParams,
 ) -> Vec<Vec<usize>> {
-    let h = median(top.iter().map(|&i| g.pts[i].z).collect());
+    let h = median(&mut top.iter().map(|&i| g.pts[i].z).collect::<Vec<f64>>());
     if eye_z <= h + p.top_lift {
         return Vec::new();
     }
     let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
-    let te = extent(top.iter().map(|&i| &g.pts[i]), angle_deg);
+    let sc = angle_deg.to_radians().sin_cos();
+    let te = extent(top.iter().map(|&i| &g.pts[i]), sc);
     let over = |q: &Point3<f64>| {
-        let e = extent(std::iter::once(q), angle_deg);
-        (0..2).all(|a| e[a][0] >= te[a][0] - p.top_inset && e[a][1] <= te[a][1] + p.top_inset)
+        let uv = room_uv(q, sc);
+        (0..2).all(|a| uv[a] >= te[a][0] - p.top_inset && uv[a] <= te[a][1] + p.top_inset)
     };
     let above: Vec<usize> = region
         .iter()
@@ -156,7 +156,7 @@ fn standing_on(
             if piece.len() < p.min_cells || piece.len() * 10 >= region.len() * 9 {
                 return false;
             }
-            let pe = extent(piece.iter().map(|&i| &g.pts[i]), angle_deg);
+            let pe = extent(piece.iter().map(|&i| &g.pts[i]), sc);
             (0..2).any(|a| pe[a][0] >= te[a][0] + p.top_inset && pe[a][1] <= te[a][1] - p.top_inset)
         })
         .collect()
