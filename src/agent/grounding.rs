@@ -4,8 +4,8 @@
 //! also answer that none of the offered frames shows the target ([`Grounded::NoneOffered`]):
 //! the caller then offers the frames the detector's pre-selection left out. A box from the
 //! marks or the VLM with almost no depth reading under it gets one feedback turn asking
-//! for a frame nearer the object (ours: the detector's boxes are checked so at
-//! pre-selection already).
+//! for a frame nearer the object, naming the offered frames that measured what the box
+//! shows (ours: the detector's boxes are checked so at pre-selection already).
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -18,7 +18,7 @@ use super::proposal::{propose, BoxSource, Outcome};
 use super::stitching::Grids;
 use super::vlm_log::VlmLog;
 use super::{step, VlmGrounder};
-use crate::geometry::RoomLayout;
+use crate::geometry::{sightings, CandidateFrame, RoomLayout, Sighting};
 use crate::jobs::{JobContext, JobFailure};
 use crate::vision::{DetectInput, Detection, InstanceMask};
 use crate::vlm::json::{parse_grounding, parse_no_image, QueryAnalysis};
@@ -139,6 +139,51 @@ fn unmeasured(
     })
 }
 
+/// The offered frames (`pre`) other than `idx` that measured what `bbox` shows there
+/// ([`sightings`]), best first; empty when the setting is off.
+async fn nearer_frames(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    idx: usize,
+    bbox: [f32; 4],
+    pre: &Preselection,
+    layout: Option<&RoomLayout>,
+) -> Result<Vec<Sighting>, JobFailure> {
+    let cp = g.params.candidates.clone();
+    if !cp.nearer_frames || cp.nearer_max == 0 {
+        return Ok(Vec::new());
+    }
+    let (scene, room, params) = (
+        ctx.scene.clone(),
+        layout.cloned(),
+        g.params.geometry.clone(),
+    );
+    let offered: Vec<usize> = pre.frames.iter().copied().filter(|&i| i != idx).collect();
+    tokio::task::spawn_blocking(move || {
+        let frames: Vec<CandidateFrame> = offered
+            .iter()
+            .filter_map(|&i| scene.frames.get(i).filter(|f| f.usable))
+            .map(|f| CandidateFrame {
+                index: f.idx,
+                camera: &f.camera,
+                depth: &f.depth,
+            })
+            .collect();
+        let mut s = sightings(
+            &scene.frames[idx].camera,
+            bbox,
+            room.as_ref(),
+            &frames,
+            cp.nearer_share,
+            &params,
+        );
+        s.truncate(cp.nearer_max);
+        s
+    })
+    .await
+    .map_err(|e| JobFailure::new("internal", format!("nearer-frame search failed: {e}")))
+}
+
 #[allow(clippy::too_many_arguments)]
 pub async fn run(
     g: &VlmGrounder,
@@ -247,10 +292,19 @@ pub async fn run(
                 if let Some(why) = why {
                     // Once per job: the next frame's box is taken as it is.
                     depth_checked = true;
-                    let fb = g
-                        .prompts
-                        .feedback_no_depth(idx as u32, &analysis.target_class);
-                    exchanges.push(json!({"feedback": fb, "invalid": why, "box": bbox}));
+                    let nearer = nearer_frames(g, ctx, idx, bbox, pre, layout).await?;
+                    let ids: Vec<u32> = nearer.iter().map(|s| s.index as u32).collect();
+                    let class = &analysis.target_class;
+                    let fb = if ids.is_empty() {
+                        g.prompts.feedback_no_depth(idx as u32, class)
+                    } else {
+                        g.prompts.feedback_no_depth_nearer(idx as u32, class, &ids)
+                    };
+                    let nearer: Vec<Value> = nearer
+                        .iter()
+                        .map(|s| json!({"image_id": format!("{:05}", s.index), "share": s.share, "rays": s.rays}))
+                        .collect();
+                    exchanges.push(json!({"feedback": fb, "invalid": why, "box": bbox, "nearer_frames": nearer}));
                     if let Err(e) = conv.feedback(g, fb, "no depth under the box") {
                         return fail_with_trace(ctx, e, exchanges, t).await;
                     }

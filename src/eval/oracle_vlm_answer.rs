@@ -52,6 +52,8 @@ pub struct Conversation {
     pub offered: Option<Vec<u32>>,
     /// Image ids rejected by object-not-existing or not-measured feedback.
     pub rejected: Vec<u32>,
+    /// Image ids the latest not-measured feedback names as having measured the place.
+    pub measured_by: Vec<u32>,
     /// Instance selection: the frame's image id.
     pub frame: Option<u32>,
     /// Instance selection: the frame size the boxes refer to.
@@ -128,16 +130,26 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
             let (_, list) = rest.split_once(':')?;
             Some(five_digit_ids(list))
         });
+    let measured_line = |l: &str| l.trim().starts_with(markers::MEASURED_BY);
     let rejected = users
         .iter()
         .filter(|m| sends_back(&m.text))
-        .flat_map(|m| five_digit_ids(&m.text))
+        .flat_map(|m| m.text.lines().filter(|l| !measured_line(l)))
+        .flat_map(five_digit_ids)
         .collect();
+    let measured_by = users
+        .iter()
+        .rev()
+        .flat_map(|m| m.text.lines())
+        .find(|l| measured_line(l))
+        .map(five_digit_ids)
+        .unwrap_or_default();
     let mut conv = Conversation {
         mode,
         query,
         offered,
         rejected,
+        measured_by,
         frame: None,
         frame_size: None,
         candidates: Vec::new(),
@@ -415,9 +427,16 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
         }
         Mode::Grounding => {
             let offered = conv.offered.as_deref();
-            let best = resolved
-                .as_ref()
-                .and_then(|(q, s)| best_frame(s.as_deref()?, q.target_id, offered, &conv.rejected));
+            // Frames named as having measured the place come first, as a careful reader
+            // would take them (when one of them shows the target).
+            let best = resolved.as_ref().and_then(|(q, s)| {
+                let s = s.as_deref()?;
+                let named = (!conv.measured_by.is_empty())
+                    .then(|| best_frame(s, q.target_id, Some(&conv.measured_by), &conv.rejected))
+                    .flatten()
+                    .filter(|&i| conv.measured_by.contains(&i) && showing(s, q.target_id)(i));
+                named.or_else(|| best_frame(s, q.target_id, offered, &conv.rejected))
+            });
             let mut id = best
                 .or_else(|| offered.and_then(|o| o.first().copied()))
                 .unwrap_or(0);

@@ -127,3 +127,28 @@ fn feedback_rejecting_the_image_after_a_mark_task_is_answered_as_image_selection
     let conv = read_conversation(&[user(grounding), user(marks)]).expect("a task");
     assert_eq!(conv.mode, Mode::Instance);
 }
+
+#[test]
+fn frames_named_as_having_measured_the_place_are_read_apart_from_the_rejected_one() {
+    use crate::vlm::prompts::Prompts;
+    let p = Prompts::embedded();
+    let user = |text: String| SeenMessage {
+        role: "user".into(),
+        text,
+        images: vec![],
+    };
+    let grounding = format!(
+        "{}\nQuery: the lamp\nOffered image ids (4): 00003, 00012, 00026, 00031",
+        markers::GROUNDING
+    );
+    let fb = p.feedback_no_depth_nearer(26, "lamp", &[31, 12]);
+    let conv = read_conversation(&[user(grounding.clone()), user(fb)]).expect("a task");
+    assert_eq!(conv.mode, Mode::Grounding);
+    assert_eq!(conv.rejected, vec![26]);
+    assert_eq!(conv.measured_by, vec![31, 12]);
+    assert_eq!(conv.offered, Some(vec![3, 12, 26, 31]));
+    // The plain feedback names none.
+    let conv = read_conversation(&[user(grounding), user(p.feedback_no_depth(26, "lamp"))])
+        .expect("a task");
+    assert!(conv.measured_by.is_empty());
+}

@@ -27,6 +27,7 @@ pub mod params;
 pub mod partial;
 pub mod planar;
 pub mod projection;
+pub mod sightline;
 pub mod support;
 #[cfg(test)]
 pub(crate) mod test_grid;
@@ -57,6 +58,7 @@ pub use planar::{snap_planar_to_wall, PlanarSnap};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,
 };
+pub use sightline::{sightings, Sighting};
 pub use support::{
     context_points, extend_to_support, median_point, SupportExtension, SupportParams,
 };

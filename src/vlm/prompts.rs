@@ -28,6 +28,9 @@ pub mod markers {
     pub const OBJECT_ID_INVALID: &str = "Feedback: object id not valid";
     /// Feedback: the box chosen in the image has almost no depth reading.
     pub const NO_DEPTH: &str = "Feedback: target not measured";
+    /// In that feedback, the line that lists the frames which measured the place (the
+    /// prefix of the line; the ids follow it).
+    pub const MEASURED_BY: &str = "Frames that measured it:";
     /// Feedback: the reply could not be parsed.
     pub const UNPARSABLE: &str = "Feedback: reply not readable";
     /// Set-of-marks selection request (pick a marked region's id).
@@ -412,6 +415,24 @@ impl Prompts {
             &[
                 ("image_id", format_image_id(image_id)),
                 ("target_class", one_line(target_class)),
+            ],
+        )
+    }
+
+    /// Feedback: the box chosen in image `image_id` has almost no depth reading, and the
+    /// frames `nearer` (best first) measured what it shows.
+    pub fn feedback_no_depth_nearer(
+        &self,
+        image_id: u32,
+        target_class: &str,
+        nearer: &[u32],
+    ) -> String {
+        self.render(
+            TemplateKind::FeedbackNoDepthNearer,
+            &[
+                ("image_id", format_image_id(image_id)),
+                ("target_class", one_line(target_class)),
+                ("image_ids", join_ids(nearer)),
             ],
         )
     }

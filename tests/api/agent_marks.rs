@@ -5,6 +5,7 @@
 use crate::agent_fixture::*;
 use crate::agent_paths::{assert_jpeg, prompts, QUERY};
 use crate::fake_vlm::{last_message, text_of, Reply};
+use grounder::vlm::prompts::markers;
 
 /// The default configuration: the closed-vocabulary detector cannot see a whiteboard, so
 /// the chosen image's class-agnostic candidates (found from the scan at indexing) are drawn
@@ -303,15 +304,16 @@ fn tar_without_depth_on_the_left_of_frame_0() -> Vec<u8> {
 }
 
 /// The VLM's box lies where the sensor read no depth (`unmeasured_retry`, on by default):
-/// it is told so once and chooses another frame, whose box is used. With the check off the
-/// box is taken as it is and nobody is told. (A lamp stands in the room: for an object
-/// flat against a wall, pixels whose ray leaves the room beyond the sensor's range would
-/// count as read.)
+/// it is told so once, with the frames that measured what its box shows
+/// (`nearer_frames`, on by default; without it the plain feedback), and chooses another
+/// frame, whose box is used. With the check off the box is taken as it is and nobody is
+/// told. (A lamp stands in the room: for an object flat against a wall, pixels whose ray
+/// leaves the room beyond the sensor's range would count as read.)
 #[tokio::test]
 async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
     let (w, h) = grounder::synth::SynthParams::small(SEED).color_size;
     let left = [2.0, 2.0, (w / 2 - 40) as f32, (h - 2) as f32];
-    for on in [true, false] {
+    for (on, nearer) in [(true, true), (true, false), (false, true)] {
         let f = Fixture::start_with_tar(
             tar_without_depth_on_the_left_of_frame_0(),
             5_000,
@@ -319,6 +321,7 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
             |c| {
                 c.agent.candidates.enabled = true;
                 c.agent.candidates.unmeasured_retry = on;
+                c.agent.candidates.nearer_frames = nearer;
             },
         )
         .await;
@@ -335,11 +338,14 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
         let job = f.run_job(QUERY).await;
         let reqs = f.vlm.requests();
         let sent: Vec<String> = reqs.iter().map(|r| text_of(last_message(r))).collect();
-        let fb = prompts().feedback_no_depth(0, "lamp");
+        let plain = prompts().feedback_no_depth(0, "lamp");
         if !on {
             // No second image selection (the box, with no depth, may still ask for a view's
             // box before the job ends).
-            assert!(!sent.contains(&fb), "{sent:#?}");
+            assert!(
+                !sent.iter().any(|t| t.starts_with(markers::NO_DEPTH)),
+                "{sent:#?}"
+            );
             let selections = sent
                 .iter()
                 .filter(|t| t.starts_with("Task: image selection"));
@@ -349,23 +355,38 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
         }
         assert_eq!(job["status"], "succeeded", "{job:#}");
         assert_eq!(reqs.len(), 6, "{sent:#?}");
-        assert_eq!(sent[4], fb);
         assert_eq!(job["result"]["image_id"], "00001", "{:#}", job["result"]);
-        // The image selection that followed records the feedback and why.
+        // The image selection that followed records the feedback, why, and the frames
+        // named in it.
         let sel = steps(&job, "image_selection");
-        let fed = sel.iter().any(|s| {
-            s["outputs"]["vlm"]
-                .as_array()
-                .into_iter()
-                .flatten()
-                .any(|x| {
-                    x["feedback"] == fb.as_str()
-                        && x["invalid"]
-                            .as_str()
-                            .is_some_and(|w| w.contains("depth pixels"))
-                })
-        });
-        assert!(fed, "{sel:#?}");
+        let rec = sel
+            .iter()
+            .flat_map(|s| s["outputs"]["vlm"].as_array().into_iter().flatten())
+            .find(|x| x["feedback"] == sent[4].as_str())
+            .unwrap_or_else(|| panic!("no feedback record: {sel:#?}"));
+        assert!(
+            rec["invalid"]
+                .as_str()
+                .is_some_and(|w| w.contains("depth pixels")),
+            "{rec:#}"
+        );
+        let named: Vec<u32> = rec["nearer_frames"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|s| s["image_id"].as_str()?.parse().ok())
+            .collect();
+        if nearer {
+            // The other frames of the walk see the left of frame 0 within range.
+            assert!(!named.is_empty() && !named.contains(&0), "{rec:#}");
+            assert_eq!(
+                sent[4],
+                prompts().feedback_no_depth_nearer(0, "lamp", &named)
+            );
+        } else {
+            assert!(named.is_empty(), "{rec:#}");
+            assert_eq!(sent[4], plain);
+        }
         assert_trace_clean(&job);
     }
 }

@@ -70,6 +70,10 @@ fn rendered_all(p: &Prompts) -> Vec<(TemplateKind, String)> {
             TemplateKind::FeedbackNoDepth,
             p.feedback_no_depth(26, "lamp"),
         ),
+        (
+            TemplateKind::FeedbackNoDepthNearer,
+            p.feedback_no_depth_nearer(26, "lamp", &[31, 12]),
+        ),
     ]
 }
 

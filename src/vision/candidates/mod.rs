@@ -124,6 +124,14 @@ pub struct CandidateParams {
     /// overruled, and a box with a fifth of its pixels read still gives a box through
     /// depth completion and the other views.
     pub unmeasured_fraction: f64,
+    /// With `unmeasured_retry`, name in that feedback the offered frames that measured what
+    /// the box shows (`geometry::sightings`: the first surface along its viewing rays),
+    /// best first, and ask the VLM to choose among them.
+    pub nearer_frames: bool,
+    /// A frame is named when it measured at least this share of the rays' first surfaces...
+    pub nearer_share: f64,
+    /// ...and at most this many are named.
+    pub nearer_max: usize,
     /// What counts as a part (see `in_views_partial_only`).
     pub partial: PartialParams,
 }
@@ -158,6 +166,9 @@ impl Default for CandidateParams {
             view_box: true,
             unmeasured_retry: true,
             unmeasured_fraction: 0.05,
+            nearer_frames: true,
+            nearer_share: 0.5,
+            nearer_max: 6,
             partial: PartialParams::default(),
         }
     }

@@ -30,11 +30,14 @@ pub enum TemplateKind {
     ViewBoxRequest,
     /// Feedback: the chosen box has almost no depth reading.
     FeedbackNoDepth,
+    /// Feedback: the chosen box has almost no depth reading, and these frames measured
+    /// what it shows.
+    FeedbackNoDepthNearer,
 }
 
 impl TemplateKind {
     /// All kinds.
-    pub const ALL: [TemplateKind; 13] = [
+    pub const ALL: [TemplateKind; 14] = [
         Self::QueryAnalysis,
         Self::GroundingSystem,
         Self::GroundingInput,
@@ -48,6 +51,7 @@ impl TemplateKind {
         Self::FeedbackBoxInvalid,
         Self::ViewBoxRequest,
         Self::FeedbackNoDepth,
+        Self::FeedbackNoDepthNearer,
     ];
 
     /// File name inside the prompts directory.
@@ -66,6 +70,7 @@ impl TemplateKind {
             Self::FeedbackBoxInvalid => "feedback_box_invalid.txt",
             Self::ViewBoxRequest => "view_box_request.txt",
             Self::FeedbackNoDepth => "feedback_no_depth.txt",
+            Self::FeedbackNoDepthNearer => "feedback_no_depth_nearer.txt",
         }
     }
 
@@ -97,6 +102,7 @@ impl TemplateKind {
             Self::FeedbackObjectNotExisting | Self::FeedbackNoDepth => {
                 &["image_id", "target_class"]
             }
+            Self::FeedbackNoDepthNearer => &["image_id", "target_class", "image_ids"],
             Self::FeedbackObjectIdInvalid => &["object_id", "valid_ids"],
             Self::FeedbackUnparsable => &["expected_keys"],
             Self::BoxRequest => &[
@@ -144,6 +150,9 @@ impl TemplateKind {
             Self::FeedbackBoxInvalid => include_str!("../../../prompts/feedback_box_invalid.txt"),
             Self::ViewBoxRequest => include_str!("../../../prompts/view_box_request.txt"),
             Self::FeedbackNoDepth => include_str!("../../../prompts/feedback_no_depth.txt"),
+            Self::FeedbackNoDepthNearer => {
+                include_str!("../../../prompts/feedback_no_depth_nearer.txt")
+            }
         }
     }
 }
