@@ -347,6 +347,19 @@ pub fn best_frame(
         .or(pool.first().copied())
 }
 
+/// The image the oracle names: among the frames the latest not-measured feedback named
+/// (`measured_by`), the one that shows the target best, as a careful reader would take
+/// them; when none of them shows it, [`best_frame`] over the offered frames.
+pub fn image_choice(scene: &SceneTruth, target: u32, conv: &Conversation) -> Option<u32> {
+    let named = &conv.measured_by;
+    let shows = showing(scene, target);
+    (!named.is_empty())
+        .then(|| best_frame(scene, target, Some(named), &conv.rejected))
+        .flatten()
+        .filter(|i| named.contains(i) && shows(*i))
+        .or_else(|| best_frame(scene, target, conv.offered.as_deref(), &conv.rejected))
+}
+
 /// A set-of-marks region outlines the target when its box overlaps the target's extent in
 /// the frame by at least this IoU: the usual criterion for a box matching an object. Below
 /// it (a piece of the object, or the object with its neighbour) the oracle answers that no
@@ -427,16 +440,9 @@ pub fn answer(truth: &Truth, conv: &Conversation, error_rate: f64, rng: &mut imp
         }
         Mode::Grounding => {
             let offered = conv.offered.as_deref();
-            // Frames named as having measured the place come first, as a careful reader
-            // would take them (when one of them shows the target).
-            let best = resolved.as_ref().and_then(|(q, s)| {
-                let s = s.as_deref()?;
-                let named = (!conv.measured_by.is_empty())
-                    .then(|| best_frame(s, q.target_id, Some(&conv.measured_by), &conv.rejected))
-                    .flatten()
-                    .filter(|&i| conv.measured_by.contains(&i) && showing(s, q.target_id)(i));
-                named.or_else(|| best_frame(s, q.target_id, offered, &conv.rejected))
-            });
+            let best = resolved
+                .as_ref()
+                .and_then(|(q, s)| image_choice(s.as_deref()?, q.target_id, conv));
             let mut id = best
                 .or_else(|| offered.and_then(|o| o.first().copied()))
                 .unwrap_or(0);

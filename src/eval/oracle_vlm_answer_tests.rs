@@ -96,15 +96,19 @@ fn a_view_box_request_is_read_as_a_box_request_about_the_view() {
     assert!(conv.candidates.is_empty());
 }
 
+/// A user message of `text` without images.
+fn user(text: String) -> SeenMessage {
+    SeenMessage {
+        role: "user".into(),
+        text,
+        images: vec![],
+    }
+}
+
 #[test]
 fn feedback_rejecting_the_image_after_a_mark_task_is_answered_as_image_selection() {
     use crate::vlm::prompts::Prompts;
     let p = Prompts::embedded();
-    let user = |text: String| SeenMessage {
-        role: "user".into(),
-        text,
-        images: vec![],
-    };
     let grounding = format!(
         "{}\nQuery: the lamp\nOffered image ids (2): 00003, 00026",
         markers::GROUNDING
@@ -132,11 +136,6 @@ fn feedback_rejecting_the_image_after_a_mark_task_is_answered_as_image_selection
 fn frames_named_as_having_measured_the_place_are_read_apart_from_the_rejected_one() {
     use crate::vlm::prompts::Prompts;
     let p = Prompts::embedded();
-    let user = |text: String| SeenMessage {
-        role: "user".into(),
-        text,
-        images: vec![],
-    };
     let grounding = format!(
         "{}\nQuery: the lamp\nOffered image ids (4): 00003, 00012, 00026, 00031",
         markers::GROUNDING
@@ -151,4 +150,36 @@ fn frames_named_as_having_measured_the_place_are_read_apart_from_the_rejected_on
     let conv = read_conversation(&[user(grounding), user(p.feedback_no_depth(26, "lamp"))])
         .expect("a task");
     assert!(conv.measured_by.is_empty());
+}
+
+#[test]
+fn the_oracle_takes_the_best_of_the_frames_named_as_having_measured_the_place() {
+    let (w, h) = (640, 480);
+    let big = Some((9000, [100.0, 100.0, 200.0, 190.0]));
+    let small = Some((2000, [300.0, 300.0, 350.0, 340.0]));
+    let scene = SceneTruth {
+        frames: vec![
+            frame((w, h), big),
+            frame((w, h), small),
+            frame((w, h), None),
+            frame((w, h), big),
+        ],
+    };
+    let grounding = format!(
+        "{}\nQuery: the lamp\nOffered image ids (4): 00000, 00001, 00002, 00003",
+        markers::GROUNDING
+    );
+    let p = crate::vlm::prompts::Prompts::embedded();
+    let read = |named: &[u32]| {
+        let fb = p.feedback_no_depth_nearer(0, "lamp", named);
+        read_conversation(&[user(grounding.clone()), user(fb)]).expect("a task")
+    };
+    // Frame 3 shows it best, but only frames 1 and 2 are named: 1 shows it.
+    assert_eq!(image_choice(&scene, 7, &read(&[2, 1])), Some(1));
+    // Named frames that do not show it are passed over for the best offered one.
+    assert_eq!(image_choice(&scene, 7, &read(&[2])), Some(3));
+    // The plain feedback: the best offered frame other than the rejected one.
+    let plain = p.feedback_no_depth(0, "lamp");
+    let conv = read_conversation(&[user(grounding), user(plain)]).expect("a task");
+    assert_eq!(image_choice(&scene, 7, &conv), Some(3));
 }
