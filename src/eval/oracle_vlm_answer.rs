@@ -80,6 +80,16 @@ fn five_digit_ids(s: &str) -> Vec<u32> {
         .collect()
 }
 
+/// The ids on the latest line (latest message first, its lines in order) whose trimmed
+/// text `list_of` accepts, read from what `list_of` returns of it.
+fn latest_ids(users: &[&SeenMessage], list_of: impl Fn(&str) -> Option<&str>) -> Option<Vec<u32>> {
+    users
+        .iter()
+        .rev()
+        .flat_map(|m| m.text.lines())
+        .find_map(|l| list_of(l.trim()).map(five_digit_ids))
+}
+
 /// Feedback rejecting the chosen image: the VLM is to choose another one.
 fn sends_back(text: &str) -> bool {
     has_marker(text, markers::OBJECT_NOT_EXISTING) || has_marker(text, markers::NO_DEPTH)
@@ -121,15 +131,10 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
                 .strip_prefix("Query:")
                 .map(|q| q.trim().to_string())
         });
-    let offered = users
-        .iter()
-        .rev()
-        .flat_map(|m| m.text.lines())
-        .find_map(|l| {
-            let rest = l.trim().strip_prefix("Offered image ids")?;
-            let (_, list) = rest.split_once(':')?;
-            Some(five_digit_ids(list))
-        });
+    let offered = latest_ids(&users, |l| {
+        let rest = l.strip_prefix("Offered image ids")?;
+        Some(rest.split_once(':')?.1)
+    });
     let measured_line = |l: &str| l.trim().starts_with(markers::MEASURED_BY);
     let rejected = users
         .iter()
@@ -137,13 +142,8 @@ pub fn read_conversation(messages: &[SeenMessage]) -> Option<Conversation> {
         .flat_map(|m| m.text.lines().filter(|l| !measured_line(l)))
         .flat_map(five_digit_ids)
         .collect();
-    let measured_by = users
-        .iter()
-        .rev()
-        .flat_map(|m| m.text.lines())
-        .find(|l| measured_line(l))
-        .map(five_digit_ids)
-        .unwrap_or_default();
+    let measured_by =
+        latest_ids(&users, |l| l.strip_prefix(markers::MEASURED_BY)).unwrap_or_default();
     let mut conv = Conversation {
         mode,
         query,

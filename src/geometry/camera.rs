@@ -218,6 +218,11 @@ impl FrameCamera {
         self.align * self.pose
     }
 
+    /// The camera's centre in the output frame.
+    pub fn centre(&self) -> Point3<f64> {
+        transform_point(&self.cam_to_out(), &Point3::origin())
+    }
+
     /// Depth pixel that a colour pixel reads (FORMATS §1 rule), clamped to the depth image.
     #[inline]
     pub fn depth_pixel_for_color(&self, u: f64, v: f64) -> (u32, u32) {

@@ -215,7 +215,7 @@ fn sample_frame(
             }
         }
     }
-    Some(transform_point(&m, &Point3::origin()))
+    Some(cam.centre())
 }
 
 /// Quantile `q` of `v` (sorted in place); `None` when empty.

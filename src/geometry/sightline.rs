@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::camera::transform_point;
+use super::projection::project_one;
 use super::{CandidateFrame, FrameCamera, GeometryParams, RoomLayout};
 
 /// Rays across each side of the box (a grid of `RAYS` x `RAYS` over the box's inner part).
@@ -55,7 +56,7 @@ struct Ray {
 
 fn rays(camera: &FrameCamera, bbox: [f32; 4], room: Option<&RoomLayout>) -> Vec<Ray> {
     let m = camera.cam_to_out();
-    let o = transform_point(&m, &Point3::origin());
+    let o = camera.centre();
     let [x1, y1, x2, y2] = bbox.map(f64::from);
     let (w, h) = (x2 - x1, y2 - y1);
     let mut out = Vec::with_capacity(RAYS * RAYS);
@@ -72,26 +73,28 @@ fn rays(camera: &FrameCamera, bbox: [f32; 4], room: Option<&RoomLayout>) -> Vec<
     out
 }
 
-/// Camera depth of the first point along `ray` that `frame` measures, if any.
+/// Camera depth of the first point along `ray` that `frame` measures, if any: where the
+/// point lands and what depth is read there follow `projection::project_one`, with half a
+/// step more tolerance (the point is one of a ray's samples, 2 cm apart).
 fn first_measured(
     ray: &Ray,
     frame: &CandidateFrame<'_>,
     to_cam: &Matrix4<f64>,
     params: &GeometryParams,
 ) -> Option<f64> {
-    let cam = frame.camera;
-    let (w, h) = (cam.color.width as f64, cam.color.height as f64);
     let steps = ((ray.far - NEAR) / STEP).floor().max(0.0) as usize;
     (0..=steps).map(|k| NEAR + k as f64 * STEP).find(|&t| {
-        let p = transform_point(to_cam, &(ray.o + ray.d * t));
-        let Some((u, v, z)) = cam.color.project(&p) else {
-            return false;
-        };
-        if u < 0.0 || v < 0.0 || u > w - 1.0 || v > h - 1.0 {
-            return false;
-        }
-        cam.depth_at_color(frame.depth, u, v)
-            .is_some_and(|d| (d - z).abs() <= params.visibility_tolerance(z) + STEP / 2.0)
+        project_one(
+            &(ray.o + ray.d * t),
+            to_cam,
+            frame.camera,
+            frame.depth,
+            params,
+        )
+        .is_some_and(|p| {
+            p.measured
+                .is_some_and(|d| (d - p.z).abs() <= params.visibility_tolerance(p.z) + STEP / 2.0)
+        })
     })
 }
 

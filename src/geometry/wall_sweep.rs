@@ -152,7 +152,7 @@ pub fn sweep_wall(
     p: &WallSweepParams,
 ) -> Option<WallSweep> {
     let to_out = cam.cam_to_out();
-    let o = transform_point(&to_out, &Point3::origin());
+    let o = cam.centre();
     let (bw, bh) = (
         f64::from(region[2] - region[0]),
         f64::from(region[3] - region[1]),

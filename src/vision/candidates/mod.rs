@@ -298,11 +298,7 @@ pub fn frame_candidates(
         }
     }
     if p.tops {
-        let eye_z = crate::geometry::camera::transform_point(
-            &cam.cam_to_out(),
-            &nalgebra::Point3::origin(),
-        )
-        .z;
+        let eye_z = cam.centre().z;
         let angle = layout.map_or(0.0, |l| l.angle_deg);
         for r in tops::on_tops(&g, &object_regions, &object_of, eye_z, angle, p) {
             let c = to_candidate(&g, &r, CandidateKind::OnTop, dims);
