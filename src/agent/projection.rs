@@ -25,6 +25,7 @@ use crate::geometry::ensemble::{
 };
 use crate::geometry::export::point_colours;
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
+use crate::geometry::hidden_base::{extend_to_hidden_base, BaseView};
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
     cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
@@ -480,8 +481,32 @@ pub async fn run(
             );
             let anchor_kept: &[Point3<f64>] = &anchor_kept;
             let bulk = median_point(anchor_kept).unwrap_or_default();
+            // The views the box came from, for a base hidden behind an edge above the eye.
+            let base_views: Vec<BaseView> = std::iter::once(&anchor_view)
+                .chain(
+                    views
+                        .iter()
+                        .filter(|v| fusion.views.iter().any(|f| f.index == v.index && f.kept)),
+                )
+                .map(|v| BaseView {
+                    index: v.index,
+                    camera: v.camera,
+                    depth: v.depth,
+                    mask: v.mask,
+                })
+                .collect();
             let support = fusion.aabb.map(|b| {
                 let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
+                let bottom_moved = moved.iter().any(|m| m.axis == "z" && m.side == "min");
+                let (b, hidden) = if down
+                    && params.support.enabled
+                    && params.support.hidden_base
+                    && !bottom_moved
+                {
+                    extend_to_hidden_base(&b, &base_views, &params)
+                } else {
+                    (b, None)
+                };
                 let (b, planar) = if flat {
                     snap_planar_to_wall(
                         &b,
@@ -495,7 +520,7 @@ pub async fn run(
                 } else {
                     (b, Vec::new())
                 };
-                (b, moved, planar)
+                (b, moved, planar, hidden)
             });
             let support_ms = ms(tsup);
             // The masks of the views used and the object's points, written out as encoded.
@@ -523,7 +548,7 @@ pub async fn run(
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved, planar) = support.ok_or_else(|| {
+    let (bbox, moved, planar, hidden_base) = support.ok_or_else(|| {
         JobFailure::new("projection_failed", "no points survived outlier removal")
     })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
@@ -541,7 +566,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

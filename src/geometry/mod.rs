@@ -19,6 +19,7 @@ pub mod depth_fill;
 pub mod ensemble;
 pub mod export;
 pub mod fusion;
+pub mod hidden_base;
 pub mod knn;
 pub mod layout;
 pub mod mask;

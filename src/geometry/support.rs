@@ -119,6 +119,10 @@ pub struct SupportParams {
     /// Keep a point within a wall's band whose colour is unlike the wall's and like the
     /// object's ([`super::wall_colour`]).
     pub room_wall_colour: bool,
+    /// When no support is found below, set the bottom on the top of a nearer surface whose
+    /// edge hides the object's lower part in every view that shows it, when that edge is
+    /// above the camera ([`super::hidden_base`]: a cup on a tall bookshelf seen from below).
+    pub hidden_base: bool,
 }
 
 impl SupportParams {
@@ -193,6 +197,7 @@ impl Default for SupportParams {
             room_wall_cut: true,
             room_wall_search: 0.12,
             room_wall_colour: true,
+            hidden_base: true,
         }
     }
 }

@@ -1,0 +1,220 @@
+//! The base of an object hidden behind the top edge of what it stands on, when that edge
+//! is above every camera that saw the object (ours, not the paper's).
+//!
+//! A cup on a bookshelf taller than the camera is seen from below: the shelf's front edge
+//! hides the cup's lower part, and the shelf's top, which the cup stands on, is never in
+//! view. Support completion ([`super::support`]) looks for that top as a layer of points
+//! around the box and finds none, so the box stops where the line of sight over the edge
+//! meets the cup (its top few centimetres).
+//!
+//! What the views do show is the edge: in a view where the object's mask ends on a
+//! surface nearer to the camera than the object, the mask's lower border is that
+//! surface's top edge, and the points just below it give the edge's height. When the
+//! edge is above the camera, whatever lies behind it and below the line of sight is
+//! hidden in that view, down to the plane of the edge's top; an object standing there
+//! stands on that plane (nothing else holds it up at that height). So when every view
+//! whose mask's lower border can be read finds it on such an edge above the camera, and
+//! the box's bottom lies above the edge, the bottom moves down onto the highest of the
+//! edges found. A view in which the object's bottom ends on a farther surface or on
+//! nothing (it is seen in the open) vetoes the move; views whose mask reaches the image's
+//! lower border, or that look too far off upright for "down" to be "down the image", say
+//! nothing.
+
+use nalgebra::{Matrix4, Point3, Vector3};
+use serde::Serialize;
+
+use super::camera::transform_point;
+use super::cloud::median;
+use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
+
+/// Pixels below a mask column's lowest pixel searched for the surface under it, at 640
+/// pixels of frame width (scaled with the frame): the depth segmenter's mask may stop a
+/// few pixels short of the object's silhouette, and the object's own depth is skipped.
+const REACH_640: f64 = 12.0;
+/// Least number of columns with a verdict for a view to count.
+const MIN_COLUMNS: usize = 3;
+
+/// One view in which the object's mask was read.
+#[derive(Debug, Clone, Copy)]
+pub struct BaseView<'a> {
+    /// Caller's frame index.
+    pub index: usize,
+    pub camera: &'a FrameCamera,
+    pub depth: &'a DepthMap,
+    pub mask: &'a Mask,
+}
+
+/// What a view shows under the object's mask.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BaseVerdict {
+    pub index: usize,
+    /// Columns of the mask whose lower border had a reading inside and one below it.
+    pub columns: usize,
+    /// Of those, columns where the surface below is nearer than the object.
+    pub occluded: usize,
+    /// Median height (m) of the nearer surface's points right below the border.
+    pub edge_z: Option<f64>,
+    /// Height (m) of the camera.
+    pub eye_z: f64,
+    /// "edge above the eye", "edge below the eye", "open", "unread" (too few columns,
+    /// a mask on the image's lower border, or a camera too far off upright).
+    pub reads: &'static str,
+}
+
+/// The move of the box's bottom onto a hidden base.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HiddenBase {
+    pub from: f64,
+    pub to: f64,
+    pub views: Vec<BaseVerdict>,
+}
+
+/// The box `b` with its bottom on the hidden base that `views` show (see the module
+/// documentation), and the record of what each view showed (`None` when the box is as
+/// given and no view was read).
+pub fn extend_to_hidden_base(
+    b: &Aabb,
+    views: &[BaseView<'_>],
+    params: &GeometryParams,
+) -> (Aabb, Option<HiddenBase>) {
+    let verdicts: Vec<BaseVerdict> = views
+        .iter()
+        .filter_map(|v| read_view(v, b, params))
+        .collect();
+    if verdicts.is_empty() {
+        return (*b, None);
+    }
+    let read: Vec<&BaseVerdict> = verdicts.iter().filter(|v| v.reads != "unread").collect();
+    let all_above = !read.is_empty() && read.iter().all(|v| v.reads == "edge above the eye");
+    let to = read
+        .iter()
+        .filter_map(|v| v.edge_z)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let gap = b.min[2] - to;
+    let mut out = *b;
+    let moved = all_above && gap > 0.0 && gap <= params.support.max_gap_down;
+    if moved {
+        out.min[2] = to;
+    }
+    let record = HiddenBase {
+        from: b.min[2],
+        to: if moved { to } else { b.min[2] },
+        views: verdicts,
+    };
+    (out, Some(record))
+}
+
+/// What `view` shows under its mask, for an object whose box is `b`. `None` when the
+/// view's pose is unusable or its mask is empty.
+fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<BaseVerdict> {
+    let cam = view.camera;
+    let to_cam = cam.out_to_cam().ok()?;
+    if cam.check_depth(view.depth).is_err() {
+        return None;
+    }
+    let m = view.mask;
+    let (w, h) = (m.width, m.height);
+    if w != cam.color.width || h != cam.color.height {
+        return None;
+    }
+    let to_out = cam.cam_to_out();
+    let eye_z = cam.centre().z;
+    let unread = |columns, occluded| BaseVerdict {
+        index: view.index,
+        columns,
+        occluded,
+        edge_z: None,
+        eye_z,
+        reads: "unread",
+    };
+    if !upright_at(cam, &to_cam, b) {
+        return Some(unread(0, 0));
+    }
+    let reach = (REACH_640 * f64::from(w) / 640.0).round().max(2.0) as u32;
+    let mut columns = 0;
+    let mut edge: Vec<f64> = Vec::new();
+    // A mask pixel is the object's when what it measured lies in the box: a loose mask
+    // (a box-shaped one, or one that spilled onto the wall behind) does not set the border.
+    let object_depth = |x: u32, y: u32| {
+        if !m.get(x, y) {
+            return None;
+        }
+        let d = reading(cam, view.depth, x, y)?;
+        let p = transform_point(&to_out, &cam.color.unproject(f64::from(x), f64::from(y), d));
+        b.contains(&p, params.support.layer).then_some(d)
+    };
+    for x in 0..w {
+        // The object's lowest pixel in the column and its depth.
+        let Some((bottom, inside)) = (0..h).rev().find_map(|y| Some((y, object_depth(x, y)?)))
+        else {
+            continue;
+        };
+        if bottom + reach >= h {
+            continue;
+        }
+        let tol = params.visibility_tolerance(inside);
+        // The readings below the border: the first that is not at the object's own depth
+        // decides. When all are at its depth, the object runs on into what is below it in
+        // the image (its mask stopped short, or it meets its support in view): its bottom
+        // is not hidden there.
+        let mut below = (bottom + 1..=bottom + reach)
+            .filter_map(|y| reading(cam, view.depth, x, y).map(|d| (y, d)))
+            .peekable();
+        if below.peek().is_none() {
+            continue;
+        }
+        columns += 1;
+        let differs = below.find(|(_, d)| (d - inside).abs() > tol);
+        if let Some((y, d)) = differs.filter(|(_, d)| *d < inside) {
+            let p = cam.color.unproject(f64::from(x), f64::from(y), d);
+            edge.push(transform_point(&to_out, &p).z);
+        }
+    }
+    let occluded = edge.len();
+    if columns < MIN_COLUMNS {
+        return Some(unread(columns, occluded));
+    }
+    // A majority of the border's columns decides.
+    if 2 * occluded <= columns {
+        return Some(BaseVerdict {
+            reads: "open",
+            ..unread(columns, occluded)
+        });
+    }
+    let edge_z = median(&mut edge);
+    Some(BaseVerdict {
+        index: view.index,
+        columns,
+        occluded,
+        edge_z: Some(edge_z),
+        eye_z,
+        reads: if edge_z > eye_z {
+            "edge above the eye"
+        } else {
+            "edge below the eye"
+        },
+    })
+}
+
+/// Depth (m) read at colour pixel (x, y).
+fn reading(cam: &FrameCamera, depth: &DepthMap, x: u32, y: u32) -> Option<f64> {
+    cam.depth_at_color(depth, f64::from(x), f64::from(y))
+}
+
+/// Does "down" at the box's centre point mostly down the image (within 30 degrees)?
+fn upright_at(cam: &FrameCamera, to_cam: &Matrix4<f64>, b: &Aabb) -> bool {
+    let c = Point3::from(b.center());
+    let below = c - Vector3::new(0.0, 0.0, 0.1);
+    let (Some((u0, v0, _)), Some((u1, v1, _))) = (
+        cam.color.project(&transform_point(to_cam, &c)),
+        cam.color.project(&transform_point(to_cam, &below)),
+    ) else {
+        return false;
+    };
+    let (du, dv) = (u1 - u0, v1 - v0);
+    dv > 0.0 && du.abs() <= dv * 30f64.to_radians().tan()
+}
+
+#[cfg(test)]
+#[path = "hidden_base_tests.rs"]
+mod tests;
