@@ -27,9 +27,10 @@ use super::camera::transform_point;
 use super::cloud::median;
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
 
-/// Pixels below a mask column's lowest pixel searched for the surface under it, at 640
-/// pixels of frame width (scaled with the frame): the depth segmenter's mask may stop a
-/// few pixels short of the object's silhouette, and the object's own depth is skipped.
+/// Fewest pixels below a mask column's lowest pixel walked to find the surface under it,
+/// at 640 pixels of frame width (scaled with the frame); the walk goes as far as the
+/// box's height in the view when that is more. A column closer than this to the image's
+/// lower border has no verdict.
 const REACH_640: f64 = 12.0;
 /// Least number of columns with a verdict for a view to count.
 const MIN_COLUMNS: usize = 3;
@@ -130,7 +131,10 @@ fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<B
     if !upright_at(cam, &to_cam, b) {
         return Some(unread(0, 0));
     }
-    let reach = (REACH_640 * f64::from(w) / 640.0).round().max(2.0) as u32;
+    let min_reach = (REACH_640 * f64::from(w) / 640.0).round().max(2.0) as u32;
+    // As far down as the box reaches in this view (the mask may stop short of the
+    // object's silhouette by more than a few pixels in a close-up).
+    let reach = min_reach.max(box_height(cam, &to_cam, b).min(f64::from(h)) as u32);
     let mut columns = 0;
     let mut edge: Vec<f64> = Vec::new();
     // A mask pixel is the object's when what it measured lies in the box: a loose mask
@@ -149,25 +153,40 @@ fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<B
         else {
             continue;
         };
-        if bottom + reach >= h {
+        if bottom + min_reach >= h {
             continue;
         }
-        let tol = params.visibility_tolerance(inside);
-        // The readings below the border: the first that is not at the object's own depth
-        // decides. When all are at its depth, the object runs on into what is below it in
-        // the image (its mask stopped short, or it meets its support in view): its bottom
-        // is not hidden there.
-        let mut below = (bottom + 1..=bottom + reach)
-            .filter_map(|y| reading(cam, view.depth, x, y).map(|d| (y, d)))
-            .peekable();
-        if below.peek().is_none() {
-            continue;
+        // Walk down the column from the border along the surface under it: a jump
+        // between successive readings of more than the visibility tolerance is where one
+        // surface ends and another begins, and decides (nearer: something hides the
+        // object's lower part). A walk that runs its length without a jump stays on the
+        // object or on what it meets in view (its mask stopped short, or it stands on a
+        // surface seen from above): its bottom is not hidden there.
+        let end = bottom + reach;
+        let mut prev = inside;
+        let mut read = false;
+        let mut jump = None;
+        for y in bottom + 1..=end.min(h - 1) {
+            let Some(d) = reading(cam, view.depth, x, y) else {
+                continue;
+            };
+            read = true;
+            if (d - prev).abs() > params.visibility_tolerance(prev) {
+                jump = Some((y, d, d < prev));
+                break;
+            }
+            prev = d;
         }
-        columns += 1;
-        let differs = below.find(|(_, d)| (d - inside).abs() > tol);
-        if let Some((y, d)) = differs.filter(|(_, d)| *d < inside) {
-            let p = cam.color.unproject(f64::from(x), f64::from(y), d);
-            edge.push(transform_point(&to_out, &p).z);
+        match jump {
+            Some((y, d, true)) => {
+                columns += 1;
+                let p = cam.color.unproject(f64::from(x), f64::from(y), d);
+                edge.push(transform_point(&to_out, &p).z);
+            }
+            Some((_, _, false)) => columns += 1,
+            // Cut by the image's border: no verdict.
+            None if read && end < h => columns += 1,
+            None => {}
         }
     }
     let occluded = edge.len();
@@ -194,6 +213,25 @@ fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<B
             "edge below the eye"
         },
     })
+}
+
+/// Height in pixels of `b`'s corners' projections into `cam` (0 when one is behind it).
+fn box_height(cam: &FrameCamera, to_cam: &Matrix4<f64>, b: &Aabb) -> f64 {
+    let mut vs = Vec::with_capacity(8);
+    for i in 0..8 {
+        let c = |k: usize| if i >> k & 1 == 0 { b.min[k] } else { b.max[k] };
+        match cam
+            .color
+            .project(&transform_point(to_cam, &Point3::new(c(0), c(1), c(2))))
+        {
+            Some((_, v, _)) => vs.push(v),
+            None => return 0.0,
+        }
+    }
+    let (lo, hi) = vs
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    (hi - lo).max(0.0)
 }
 
 /// Depth (m) read at colour pixel (x, y).

@@ -244,3 +244,34 @@ fn a_loose_mask_over_the_wall_behind_still_finds_the_edge() {
     assert_eq!(record.views[0].reads, "edge above the eye", "{record:?}");
     assert!((out.min[2] - CABINET.1[2]).abs() < 0.05, "{out:?}");
 }
+
+#[test]
+fn a_mask_that_stops_well_short_of_the_objects_bottom_still_finds_the_edge() {
+    // Only the object's top rows are in the mask (a segmenter's mask in a close-up can
+    // stop far above the silhouette); the walk down goes on over the object's own surface
+    // to the edge.
+    let world = world(true);
+    let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
+    let (depth, full) = mask_of(&cam, &world, ON_TOP);
+    let b = seen_box(&cam, &depth, &full);
+    let rows: Vec<u32> = (0..full.height)
+        .filter(|&y| (0..full.width).any(|x| full.get(x, y)))
+        .collect();
+    assert!(rows.len() >= 5, "{rows:?}");
+    let mut top = Mask::new(full.width, full.height);
+    for &y in &rows[..2] {
+        for x in 0..full.width {
+            top.set(x, y, full.get(x, y));
+        }
+    }
+    let view = BaseView {
+        index: 0,
+        camera: &cam,
+        depth: &depth,
+        mask: &top,
+    };
+    let (out, record) = extend_to_hidden_base(&b, &[view], &gp());
+    let record = record.expect("the view was read");
+    assert_eq!(record.views[0].reads, "edge above the eye", "{record:?}");
+    assert!((out.min[2] - CABINET.1[2]).abs() < 0.05, "{out:?}");
+}
