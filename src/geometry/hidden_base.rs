@@ -71,8 +71,8 @@ pub struct HiddenBase {
 }
 
 /// The box `b` with its bottom on the hidden base that `views` show (see the module
-/// documentation), and the record of what each view showed (`None` when the box is as
-/// given and no view was read).
+/// documentation), and the record of what each view showed (`None` when no view could be
+/// looked at: a bad pose, depth map or mask size; the box is then as given).
 pub fn extend_to_hidden_base(
     b: &Aabb,
     views: &[BaseView<'_>],
