@@ -21,6 +21,7 @@ impl From<ExportError> for ApiError {
             ExportError::SceneNotFound(id) => ApiError::not_found("scene", &id),
             ExportError::BadVoxel(_) => ApiError::bad_request("invalid_voxel", e.to_string()),
             ExportError::Internal(d) => ApiError::internal(d),
+            ExportError::Stopping => ApiError::unavailable("shutting_down", e.to_string()),
         }
     }
 }

@@ -30,6 +30,9 @@ pub enum ExportError {
     BadVoxel(f64),
     #[error("{0}")]
     Internal(String),
+    /// The service began to stop while the export was being computed.
+    #[error("the service is stopping")]
+    Stopping,
 }
 
 /// Points exports kept in memory, newest last.
@@ -151,13 +154,15 @@ pub async fn compute_scene_points_paced<G, F>(
 ) -> Result<Vec<u8>, ExportError>
 where
     G: FnMut() -> F,
-    F: std::future::Future<Output = ()>,
+    F: std::future::Future<Output = bool>,
 {
     let voxel = mm as f64 / 1000.0;
     let usable: Vec<usize> = scene.usable_frames().map(|f| f.idx).collect();
     let mut per_frame = Vec::with_capacity(usable.len());
     for chunk in usable.chunks(PACED_CHUNK) {
-        gate().await;
+        if !gate().await {
+            return Err(ExportError::Stopping);
+        }
         let (sc, chunk) = (scene.clone(), chunk.to_vec());
         let clouds = tokio::task::spawn_blocking(move || {
             chunk
@@ -169,7 +174,9 @@ where
         .map_err(|e| ExportError::Internal(format!("points task failed: {e}")))?;
         per_frame.extend(clouds);
     }
-    gate().await;
+    if !gate().await {
+        return Err(ExportError::Stopping);
+    }
     tokio::task::spawn_blocking(move || points_ply(&scene, per_frame, voxel))
         .await
         .map_err(|e| ExportError::Internal(format!("points task failed: {e}")))
@@ -299,11 +306,15 @@ impl JobSystem {
     /// process nor queued on a ready scene ([`Self::jobs_idle`]); after
     /// [`WARM_PATIENCE`] of waiting in all it stops waiting (still one thread, one chunk at
     /// a time), so a busy service still gets the export.
+    ///
+    /// The task is one of the job system's background tasks: shutdown waits for it, and it
+    /// stops between chunks once the service is stopping, writing nothing.
     pub fn warm_scene_points(&self, scene_id: &str) {
         let (me, id) = (self.clone(), scene_id.to_string());
-        tokio::spawn(async move {
-            if let Err(e) = me.warm_points(&id).await {
-                tracing::warn!(scene = %id, "cannot prepare the scene's points: {e}");
+        self.spawn_background(async move {
+            match me.warm_points(&id).await {
+                Ok(()) | Err(ExportError::Stopping) => {}
+                Err(e) => tracing::warn!(scene = %id, "cannot prepare the scene's points: {e}"),
             }
         });
     }
@@ -319,12 +330,18 @@ impl JobSystem {
             .acquire_scene(scene_id)
             .await
             .map_err(|f| ExportError::Internal(f.detail))?;
+        if self.stopping().is_cancelled() {
+            return Err(ExportError::Stopping);
+        }
         let scene = self.scene_data(scene_id).await?;
         let waited = Arc::new(Mutex::new(std::time::Duration::ZERO));
         let me = self.clone();
         let bytes = compute_scene_points_paced(scene, mm, || {
             let (me, waited) = (me.clone(), waited.clone());
-            async move { me.wait_for_idle_jobs(&waited).await }
+            async move {
+                me.wait_for_idle_jobs(&waited).await;
+                !me.stopping().is_cancelled()
+            }
         })
         .await?;
         let b = Arc::new(bytes);

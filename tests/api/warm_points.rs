@@ -88,3 +88,41 @@ async fn the_warmed_points_wait_for_a_running_job_and_equal_the_computed_ones() 
     );
     app.stop().await;
 }
+
+#[tokio::test]
+async fn a_stopping_service_ends_its_warming_and_writes_nothing_after() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path().to_path_buf());
+    cfg.pipeline = "test:delay_ms=5000".into();
+    let app = TestApp::spawn_with(cfg).await;
+    let a = upload_tiny(&app).await;
+    assert!(wait_file(&points_file(&app, &a), Duration::from_secs(20)).await);
+
+    // A job runs, so the new scene's warming waits; then the service stops.
+    let r = app.create_job(&a, "the box").await;
+    let job: serde_json::Value = r.json().await.unwrap();
+    let id = job["id"].as_str().unwrap().to_string();
+    let t = Instant::now();
+    while app.get_json(&format!("/v1/jobs/{id}")).await.1["status"] != "running" {
+        assert!(t.elapsed() < Duration::from_secs(10), "job never ran");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let b = upload_tiny(&app).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let scene_b = app.data_dir.join("scenes").join(&b);
+    let data_dir = app.data_dir.clone();
+    let mut before = grounder::storage::local_files(&scene_b).unwrap();
+    before.sort();
+    app.stop().await;
+
+    // Once stop returned, nothing more is written into the scene's folder.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let mut after = grounder::storage::local_files(&scene_b).unwrap();
+    after.sort();
+    assert_eq!(before, after, "files changed after the service stopped");
+    assert!(!points_file_in(&data_dir, &b).exists());
+}
+
+fn points_file_in(data_dir: &std::path::Path, sid: &str) -> PathBuf {
+    data_dir.join("scenes").join(sid).join("points_50mm.ply")
+}
