@@ -25,7 +25,7 @@ use crate::geometry::ensemble::{
 };
 use crate::geometry::export::point_colours;
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
-use crate::geometry::hidden_base::{extend_to_hidden_base, BaseView};
+use crate::geometry::hidden_base::extend_to_hidden_base;
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
     cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
@@ -469,32 +469,17 @@ pub async fn run(
             let votes = json!(votes);
             let fuse_ms = ms(tf);
             let tsup = Instant::now();
+            let kept = |i: usize| fusion.views.iter().any(|v| v.index == i && v.kept);
             // Support completion sees around the anchor and every view the fusion kept,
             // except those that segmented only the part (around it lies the object's rest).
             let view_ctx: Vec<(usize, &[Point3<f64>])> =
                 clouds.iter().map(|(i, c)| (*i, &c.context[..])).collect();
-            let context = super::ensemble_boxes::support_context(
-                anchor_ctx,
-                &view_ctx,
-                |i| fusion.views.iter().any(|v| v.index == i && v.kept),
-                |i| part_only(i).is_some(),
-            );
+            let context =
+                super::ensemble_boxes::support_context(anchor_ctx, &view_ctx, kept, |i| {
+                    part_only(i).is_some()
+                });
             let anchor_kept: &[Point3<f64>] = &anchor_kept;
             let bulk = median_point(anchor_kept).unwrap_or_default();
-            // The views the box came from, for a base hidden behind an edge above the eye.
-            let base_views: Vec<BaseView> = std::iter::once(&anchor_view)
-                .chain(
-                    views
-                        .iter()
-                        .filter(|v| fusion.views.iter().any(|f| f.index == v.index && f.kept)),
-                )
-                .map(|v| BaseView {
-                    index: v.index,
-                    camera: v.camera,
-                    depth: v.depth,
-                    mask: v.mask,
-                })
-                .collect();
             let support = fusion.aabb.map(|b| {
                 let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
                 let bottom_moved = moved.iter().any(|m| m.axis == "z" && m.side == "min");
@@ -503,6 +488,10 @@ pub async fn run(
                     && params.support.hidden_base
                     && !bottom_moved
                 {
+                    // The views the box came from.
+                    let base_views: Vec<_> = std::iter::once(&anchor_view)
+                        .chain(views.iter().filter(|v| kept(v.index)))
+                        .collect();
                     extend_to_hidden_base(&b, &base_views, &params)
                 } else {
                     (b, None)
@@ -526,7 +515,7 @@ pub async fn run(
             // The masks of the views used and the object's points, written out as encoded.
             let mut mask_files = vec![(anchor_idx, &anchor_mask)];
             for (i, c) in &clouds {
-                if fusion.views.iter().any(|v| v.index == *i && v.kept) {
+                if kept(*i) {
                     mask_files.push((*i, &c.mask));
                 }
             }

@@ -25,7 +25,8 @@ use serde::Serialize;
 
 use super::camera::transform_point;
 use super::cloud::median;
-use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask};
+use super::fusion::SegmentedView;
+use super::{Aabb, DepthMap, FrameCamera, GeometryParams};
 
 /// Fewest pixels below a mask column's lowest pixel walked to find the surface under it,
 /// at 640 pixels of frame width (scaled with the frame); the walk goes as far as the
@@ -35,21 +36,30 @@ const REACH_640: f64 = 12.0;
 /// Least number of columns with a verdict for a view to count.
 const MIN_COLUMNS: usize = 3;
 
-/// One view in which the object's mask was read.
-#[derive(Debug, Clone, Copy)]
-pub struct BaseView<'a> {
-    /// Caller's frame index.
-    pub index: usize,
-    pub camera: &'a FrameCamera,
-    pub depth: &'a DepthMap,
-    pub mask: &'a Mask,
+/// What a view shows under the object's mask, in a word.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum BaseReading {
+    /// Most of the border lies on a nearer surface whose top is above the camera.
+    #[serde(rename = "edge above the eye")]
+    EdgeAboveEye,
+    /// Most of the border lies on a nearer surface whose top is below the camera.
+    #[serde(rename = "edge below the eye")]
+    EdgeBelowEye,
+    /// Most of the border ends on a farther surface or on the object's own continuation.
+    #[serde(rename = "open")]
+    Open,
+    /// Too few columns, a mask on the image's lower border, or a camera too far off
+    /// upright.
+    #[serde(rename = "unread")]
+    Unread,
 }
 
 /// What a view shows under the object's mask.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BaseVerdict {
     pub index: usize,
-    /// Columns of the mask whose lower border had a reading inside and one below it.
+    /// Columns of the mask whose walk down from the object's lowest pixel decided:
+    /// it met a depth jump, or ran its full reach on readings without one.
     pub columns: usize,
     /// Of those, columns where the surface below is nearer than the object.
     pub occluded: usize,
@@ -57,9 +67,7 @@ pub struct BaseVerdict {
     pub edge_z: Option<f64>,
     /// Height (m) of the camera.
     pub eye_z: f64,
-    /// "edge above the eye", "edge below the eye", "open", "unread" (too few columns,
-    /// a mask on the image's lower border, or a camera too far off upright).
-    pub reads: &'static str,
+    pub reads: BaseReading,
 }
 
 /// The move of the box's bottom onto a hidden base.
@@ -75,7 +83,7 @@ pub struct HiddenBase {
 /// looked at: a bad pose, depth map or mask size; the box is then as given).
 pub fn extend_to_hidden_base(
     b: &Aabb,
-    views: &[BaseView<'_>],
+    views: &[&SegmentedView<'_>],
     params: &GeometryParams,
 ) -> (Aabb, Option<HiddenBase>) {
     let verdicts: Vec<BaseVerdict> = views
@@ -85,8 +93,11 @@ pub fn extend_to_hidden_base(
     if verdicts.is_empty() {
         return (*b, None);
     }
-    let read: Vec<&BaseVerdict> = verdicts.iter().filter(|v| v.reads != "unread").collect();
-    let all_above = !read.is_empty() && read.iter().all(|v| v.reads == "edge above the eye");
+    let read: Vec<&BaseVerdict> = verdicts
+        .iter()
+        .filter(|v| v.reads != BaseReading::Unread)
+        .collect();
+    let all_above = !read.is_empty() && read.iter().all(|v| v.reads == BaseReading::EdgeAboveEye);
     let to = read
         .iter()
         .filter_map(|v| v.edge_z)
@@ -107,7 +118,7 @@ pub fn extend_to_hidden_base(
 
 /// What `view` shows under its mask, for an object whose box is `b`. `None` when the
 /// view's pose is unusable or its mask is empty.
-fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<BaseVerdict> {
+fn read_view(view: &SegmentedView<'_>, b: &Aabb, params: &GeometryParams) -> Option<BaseVerdict> {
     let cam = view.camera;
     let to_cam = cam.out_to_cam().ok()?;
     if cam.check_depth(view.depth).is_err() {
@@ -126,7 +137,7 @@ fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<B
         occluded,
         edge_z: None,
         eye_z,
-        reads: "unread",
+        reads: BaseReading::Unread,
     };
     if !upright_at(cam, &to_cam, b) {
         return Some(unread(0, 0));
@@ -196,7 +207,7 @@ fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<B
     // A majority of the border's columns decides.
     if 2 * occluded <= columns {
         return Some(BaseVerdict {
-            reads: "open",
+            reads: BaseReading::Open,
             ..unread(columns, occluded)
         });
     }
@@ -208,9 +219,9 @@ fn read_view(view: &BaseView<'_>, b: &Aabb, params: &GeometryParams) -> Option<B
         edge_z: Some(edge_z),
         eye_z,
         reads: if edge_z > eye_z {
-            "edge above the eye"
+            BaseReading::EdgeAboveEye
         } else {
-            "edge below the eye"
+            BaseReading::EdgeBelowEye
         },
     })
 }

@@ -3,6 +3,7 @@
 use super::*;
 use crate::geometry::projection::{backproject_mask, BackprojectOptions};
 use crate::geometry::test_scene::{camera, render, room_slabs};
+use crate::geometry::Mask;
 
 type Block = ([f64; 3], [f64; 3]);
 
@@ -14,6 +15,23 @@ const RANGE: f64 = 6.0;
 
 fn gp() -> GeometryParams {
     GeometryParams::default()
+}
+
+/// A view of the object for the rule (it reads neither points nor regions).
+fn view<'a>(
+    index: usize,
+    camera: &'a FrameCamera,
+    depth: &'a DepthMap,
+    mask: &'a Mask,
+) -> SegmentedView<'a> {
+    SegmentedView {
+        index,
+        camera,
+        depth,
+        mask,
+        points: &[],
+        region: None,
+    }
 }
 
 /// The colour pixels where `object` is the first surface `cam` sees in `world`.
@@ -57,17 +75,12 @@ fn a_box_seen_from_below_over_a_tall_cabinets_edge_is_set_down_on_the_cabinet() 
     let b = seen_box(&cam, &depth, &mask);
     // The edge hides the box's lower part: what was measured starts well above the top.
     assert!(b.min[2] > CABINET.1[2] + 0.06, "{b:?}");
-    let view = BaseView {
-        index: 7,
-        camera: &cam,
-        depth: &depth,
-        mask: &mask,
-    };
-    let (out, record) = extend_to_hidden_base(&b, &[view], &gp());
+    let view = view(7, &cam, &depth, &mask);
+    let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     assert_eq!(record.views.len(), 1);
     let v = &record.views[0];
-    assert_eq!((v.index, v.reads), (7, "edge above the eye"), "{v:?}");
+    assert_eq!((v.index, v.reads), (7, BaseReading::EdgeAboveEye), "{v:?}");
     assert!(
         v.occluded * 2 > v.columns && v.columns >= MIN_COLUMNS,
         "{v:?}"
@@ -101,16 +114,11 @@ fn an_edge_below_the_eye_is_not_read_as_a_hidden_base() {
         b.min[2] > 0.3,
         "the table hides the block's lower part: {b:?}"
     );
-    let view = BaseView {
-        index: 1,
-        camera: &cam,
-        depth: &depth,
-        mask: &mask,
-    };
-    let (out, record) = extend_to_hidden_base(&b, &[view], &gp());
+    let view = view(1, &cam, &depth, &mask);
+    let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     let v = &record.views[0];
-    assert_eq!(v.reads, "edge below the eye", "{record:?}");
+    assert_eq!(v.reads, BaseReading::EdgeBelowEye, "{record:?}");
     assert!((v.edge_z.expect("edge") - TABLE.1[2]).abs() < 0.05, "{v:?}");
     assert_eq!(out, b);
     assert_eq!(record.to, record.from);
@@ -124,15 +132,10 @@ fn an_object_seen_standing_on_its_support_reads_open() {
     let (depth, mask) = mask_of(&high, &world, ON_TOP);
     let mut b = seen_box(&high, &depth, &mask);
     b.min[2] += 0.1;
-    let view = BaseView {
-        index: 1,
-        camera: &high,
-        depth: &depth,
-        mask: &mask,
-    };
-    let (out, record) = extend_to_hidden_base(&b, &[view], &gp());
+    let view = view(1, &high, &depth, &mask);
+    let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
-    assert_eq!(record.views[0].reads, "open", "{record:?}");
+    assert_eq!(record.views[0].reads, BaseReading::Open, "{record:?}");
     assert_eq!(out, b);
 }
 
@@ -142,27 +145,17 @@ fn a_view_that_sees_the_bottom_in_the_open_vetoes_the_move() {
     let open_world = world(false);
     let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
     let (d_open, m_open) = mask_of(&cam, &open_world, ON_TOP);
-    let open = BaseView {
-        index: 2,
-        camera: &cam,
-        depth: &d_open,
-        mask: &m_open,
-    };
+    let open = view(2, &cam, &d_open, &m_open);
     // The box as the cabinet's edge cuts it, and the view that shows that edge.
     let shelf_world = world(true);
     let (d_shelf, m_shelf) = mask_of(&cam, &shelf_world, ON_TOP);
     let b = seen_box(&cam, &d_shelf, &m_shelf);
-    let shelf = BaseView {
-        index: 3,
-        camera: &cam,
-        depth: &d_shelf,
-        mask: &m_shelf,
-    };
-    let (alone, _) = extend_to_hidden_base(&b, &[shelf], &gp());
+    let shelf = view(3, &cam, &d_shelf, &m_shelf);
+    let (alone, _) = extend_to_hidden_base(&b, &[&shelf], &gp());
     assert!(alone.min[2] < b.min[2] - 0.05, "{alone:?}");
-    let (out, record) = extend_to_hidden_base(&b, &[shelf, open], &gp());
+    let (out, record) = extend_to_hidden_base(&b, &[&shelf, &open], &gp());
     let record = record.expect("the views were read");
-    assert_eq!(record.views[1].reads, "open", "{record:?}");
+    assert_eq!(record.views[1].reads, BaseReading::Open, "{record:?}");
     assert_eq!(out, b);
 }
 
@@ -180,26 +173,16 @@ fn a_view_looking_sideways_or_a_mask_on_the_lower_border_says_nothing() {
             low.set(x, mask.height - 2, true);
         }
     }
-    let bordered = BaseView {
-        index: 4,
-        camera: &cam,
-        depth: &depth,
-        mask: &low,
-    };
+    let bordered = view(4, &cam, &depth, &low);
     // A camera rolled by 90 degrees: "down" runs across its image.
     let mut rolled = cam;
     let roll = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 90f64.to_radians());
     rolled.pose *= roll.to_homogeneous();
-    let sideways = BaseView {
-        index: 5,
-        camera: &rolled,
-        depth: &depth,
-        mask: &mask,
-    };
-    let (out, record) = extend_to_hidden_base(&b, &[bordered, sideways], &gp());
+    let sideways = view(5, &rolled, &depth, &mask);
+    let (out, record) = extend_to_hidden_base(&b, &[&bordered, &sideways], &gp());
     let record = record.expect("the views were looked at");
     assert!(
-        record.views.iter().all(|v| v.reads == "unread"),
+        record.views.iter().all(|v| v.reads == BaseReading::Unread),
         "{record:?}"
     );
     assert_eq!(out, b);
@@ -233,15 +216,14 @@ fn a_loose_mask_over_the_wall_behind_still_finds_the_edge() {
         ],
     );
     assert!(loose.count() > 2 * tight.count());
-    let view = BaseView {
-        index: 0,
-        camera: &cam,
-        depth: &depth,
-        mask: &loose,
-    };
-    let (out, record) = extend_to_hidden_base(&b, &[view], &gp());
+    let view = view(0, &cam, &depth, &loose);
+    let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
-    assert_eq!(record.views[0].reads, "edge above the eye", "{record:?}");
+    assert_eq!(
+        record.views[0].reads,
+        BaseReading::EdgeAboveEye,
+        "{record:?}"
+    );
     assert!((out.min[2] - CABINET.1[2]).abs() < 0.05, "{out:?}");
 }
 
@@ -264,14 +246,13 @@ fn a_mask_that_stops_well_short_of_the_objects_bottom_still_finds_the_edge() {
             top.set(x, y, full.get(x, y));
         }
     }
-    let view = BaseView {
-        index: 0,
-        camera: &cam,
-        depth: &depth,
-        mask: &top,
-    };
-    let (out, record) = extend_to_hidden_base(&b, &[view], &gp());
+    let view = view(0, &cam, &depth, &top);
+    let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
-    assert_eq!(record.views[0].reads, "edge above the eye", "{record:?}");
+    assert_eq!(
+        record.views[0].reads,
+        BaseReading::EdgeAboveEye,
+        "{record:?}"
+    );
     assert!((out.min[2] - CABINET.1[2]).abs() < 0.05, "{out:?}");
 }
