@@ -33,6 +33,10 @@ pub struct PlanarSnap {
     pub iqr: f64,
     /// The front plane (the anchor's front layer on the axis, see `planar_front_share`).
     pub front: f64,
+    /// When the anchor's points were ended on the room's wall: the front layer of those
+    /// the sensor measured in front of it, if at least `min_points` stand at least 1 cm
+    /// before the wall (the object's front then; else it gets the class's flat depth).
+    pub seen_front: Option<f64>,
     /// The wall behind it, when one was found within reach.
     pub wall: Option<f64>,
     /// The wall is the room's box (see [`super::layout`]), not a layer of the context.
@@ -188,7 +192,9 @@ pub const ON_ROOM_WALL: f64 = 0.002;
 /// the `room`'s box has one there (see [`super::layout`]).
 /// A plane lying on its wall (no frame resolved the object's front from the wall: its
 /// points were ended on the room's box, or it meets the wall found behind it) gets
-/// `flat_depth` in front of that wall. When most of the anchor's points lie on one of the
+/// `flat_depth` in front of that wall, unless some of its points ended on the room's box
+/// were measured well in front of it (a window's frame before glass the sensor does not
+/// see): those give the front. When most of the anchor's points lie on one of the
 /// room's walls (within [`ON_ROOM_WALL`]: depth completion ends the rays no frame measured
 /// exactly there, while measured points scatter by the sensor's noise), that wall is the
 /// object's, whatever layer the context shows nearby.
@@ -258,7 +264,8 @@ pub fn snap_planar_to_wall(
                 .filter(|w| (-p.layer..=p.planar_max_depth).contains(&(sign * (w - front))))
                 .min_by(|x, y| (sign * (x - front)).total_cmp(&(sign * (y - front))))
         };
-        // The room's wall the anchor's points were ended on, if most of them were.
+        // The room's wall the anchor's points were ended on, if most of them were (its
+        // index among the walls on the axis).
         // (Each point against the wall where it stands: a wall turned a little off the axis
         // moves by millimetres along the object.)
         let placed_on = || {
@@ -274,29 +281,60 @@ pub fn snap_planar_to_wall(
             }
             on.iter()
                 .position(|&n| 2 * n >= anchor.len())
-                .map(|k| at_centre[k])
+                .map(|k| (k, at_centre[k]))
         };
         let (wall, room_wall, on_wall) = match placed_on() {
-            Some(w) => (Some(w), true, true),
+            Some((k, w)) => (Some(w), true, Some(k)),
             None => match densest_layer(&slab, context, (a, sign), p) {
-                Some(w) => (Some(w), false, false),
-                None => (from_room(), true, false),
+                Some(w) => (Some(w), false, None),
+                None => (from_room(), true, None),
             },
         };
+        // On its wall: the points the sensor measured in front of it (depth completion put
+        // the others there) are the object's front, when they stand apart from the wall;
+        // a window's frame before its unmeasured glass.
+        let seen_front = on_wall.zip(room).and_then(|(k, room)| {
+            let seen: Vec<Point3<f64>> = anchor
+                .iter()
+                .filter(|q| {
+                    room.walls_on_axis(a, q).get(k).is_some_and(|w| {
+                        let gap = sign * (w - q[a]);
+                        gap > ON_ROOM_WALL && gap <= p.planar_max_depth
+                    })
+                })
+                .copied()
+                .collect();
+            if seen.len() < p.min_points {
+                return None;
+            }
+            let mid = quartiles(&seen, a).1;
+            let f = front_layer(
+                &seen,
+                a,
+                -sign,
+                mid,
+                p.planar_front_share,
+                p.planar_max_depth,
+            );
+            let w = room.walls_on_axis(a, &centre).get(k).copied()?;
+            (sign * (w - f) >= MIN_DEPTH).then_some(f)
+        });
         snaps.push(PlanarSnap {
             axis: NAMES[a],
             iqr: iqr(a),
             front,
+            seen_front,
             wall,
             room_wall: room_wall && wall.is_some(),
             was: [b.min[a], b.max[a]],
         });
         if let Some(wall) = wall {
             // On its wall: the object's front was never seen apart from it.
-            let front = if on_wall || sign * (wall - front) < MIN_DEPTH {
-                wall - sign * flat_depth
-            } else {
-                front
+            let front = match (on_wall, seen_front) {
+                (Some(_), Some(f)) => f,
+                (Some(_), None) => wall - sign * flat_depth,
+                (None, _) if sign * (wall - front) < MIN_DEPTH => wall - sign * flat_depth,
+                (None, _) => front,
             };
             out.min[a] = front.min(wall);
             out.max[a] = front.max(wall);

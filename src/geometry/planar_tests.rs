@@ -194,6 +194,78 @@ fn a_window_no_frame_measured_gets_its_depth_in_front_of_the_rooms_wall() {
 }
 
 #[test]
+fn a_window_frame_measured_before_glass_ended_on_the_rooms_wall_is_the_front() {
+    use crate::geometry::RoomLayout;
+    // The sensor read no depth on the glass: depth completion put those points on the
+    // room's wall y = 6.11, two thirds of the window. The frame, a 10 cm border, was
+    // measured 5 cm in front of it (with 5 mm of noise).
+    let room = RoomLayout {
+        angle_deg: 0.0,
+        u: [Some(0.0), Some(5.0)],
+        v: [Some(0.0), Some(6.11)],
+        faced: [true; 4],
+        floor: Some(0.0),
+        ceiling: None,
+        reach: [[0.0, 5.0], [0.0, 6.11], [0.0, 2.5]],
+        range: 5.0,
+        points: 1000,
+    };
+    let frame = |p: &Point3<f64>| p.x < 0.8 || p.x > 1.8 || p.z < 1.1 || p.z > 2.0;
+    let window: Vec<Point3<f64>> = plane_y(6.11, (0.7, 1.9), (1.0, 2.1), 0.0, None)
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            if frame(&p) {
+                Point3::new(p.x, 6.06 + 0.005 * jitter(i, 7), p.z)
+            } else {
+                p
+            }
+        })
+        .collect();
+    let on_wall = window.iter().filter(|p| p.y == 6.11).count();
+    assert!(2 * on_wall >= window.len(), "most points on the wall");
+    let b = Aabb::new([0.7, 6.05, 1.0], [1.9, 6.11, 2.1]);
+    let gp = GeometryParams::default();
+    let run = |w: &[Point3<f64>]| {
+        snap_planar_to_wall(
+            &b,
+            w,
+            &[],
+            Some(&room),
+            [1.3, 1.0, 1.5],
+            gp.layout.flat_depth,
+            &gp,
+        )
+    };
+    let (got, snaps) = run(&window);
+    assert!(snaps.len() == 1 && snaps[0].room_wall, "{snaps:?}");
+    let seen = snaps[0].seen_front.expect("the frame was measured");
+    assert!((seen - 6.06).abs() < 0.01, "{snaps:?}");
+    assert!(
+        (got.min[1] - seen).abs() < 1e-9 && (got.max[1] - 6.11).abs() < 1e-6,
+        "{got:?}"
+    );
+    // The frame measured within the wall's noise (4 mm before it) does not stand apart:
+    // the class's flat depth, as for a window measured nowhere.
+    let close: Vec<Point3<f64>> = window
+        .iter()
+        .map(|p| {
+            if p.y < 6.11 {
+                Point3::new(p.x, 6.106, p.z)
+            } else {
+                *p
+            }
+        })
+        .collect();
+    let (got, snaps) = run(&close);
+    assert_eq!(snaps[0].seen_front, None, "{snaps:?}");
+    assert!(
+        (got.min[1] - (6.11 - gp.layout.flat_depth)).abs() < 1e-6,
+        "{got:?}"
+    );
+}
+
+#[test]
 fn a_picture_ended_on_the_rooms_wall_keeps_that_wall_over_a_layer_behind_it() {
     use crate::geometry::RoomLayout;
     // Depth completion put the picture's points on the room's wall x = 6.99; the
