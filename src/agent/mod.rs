@@ -3,6 +3,7 @@
 //! (→ instance selection) → segmentation + multi-view ensemble projection.
 //! Every stage appends a step `{step, inputs, outputs, ms}` to the job's trace.
 
+mod bottom;
 pub mod conversation;
 pub mod ensemble_boxes;
 pub mod exports;

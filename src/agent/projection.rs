@@ -25,7 +25,6 @@ use crate::geometry::ensemble::{
 };
 use crate::geometry::export::point_colours;
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
-use crate::geometry::hidden_base::extend_to_hidden_base;
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
     cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
@@ -391,6 +390,9 @@ pub async fn run(
     let anchor_image = choice.image.clone();
     let trace = ctx.trace.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
+    // The chosen box, when drawn on the image (not a candidate's), and the room's floor.
+    let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
+    let floor = walls.as_deref().and_then(|r| r.floor);
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
@@ -483,18 +485,17 @@ pub async fn run(
             let support = fusion.aabb.map(|b| {
                 let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
                 let bottom_moved = moved.iter().any(|m| m.axis == "z" && m.side == "min");
-                let (b, hidden) = if down
-                    && params.support.enabled
-                    && params.support.hidden_base
-                    && !bottom_moved
-                {
-                    // The views the box came from.
-                    let base_views: Vec<_> = std::iter::once(&anchor_view)
-                        .chain(views.iter().filter(|v| kept(v.index)))
-                        .collect();
-                    extend_to_hidden_base(&b, &base_views, &params)
+                let (b, hidden, reach) = if down && params.support.enabled && !bottom_moved {
+                    let v = super::bottom::BottomViews {
+                        anchor: &anchor_view,
+                        anchor_box,
+                        views: &views,
+                        boxes: &vb,
+                        kept: &kept,
+                    };
+                    super::bottom::complete(&b, &v, floor, &params)
                 } else {
-                    (b, None)
+                    (b, None, None)
                 };
                 let (b, planar) = if flat {
                     snap_planar_to_wall(
@@ -509,7 +510,7 @@ pub async fn run(
                 } else {
                     (b, Vec::new())
                 };
-                (b, moved, planar, hidden)
+                (b, moved, planar, hidden, reach)
             });
             let support_ms = ms(tsup);
             // The masks of the views used and the object's points, written out as encoded.
@@ -537,7 +538,7 @@ pub async fn run(
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved, planar, hidden_base) = support.ok_or_else(|| {
+    let (bbox, moved, planar, hidden_base, floor_reach) = support.ok_or_else(|| {
         JobFailure::new("projection_failed", "no points survived outlier removal")
     })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
@@ -555,7 +556,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

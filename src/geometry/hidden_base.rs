@@ -251,7 +251,7 @@ fn reading(cam: &FrameCamera, depth: &DepthMap, x: u32, y: u32) -> Option<f64> {
 }
 
 /// Does "down" at the box's centre point mostly down the image (within 30 degrees)?
-fn upright_at(cam: &FrameCamera, to_cam: &Matrix4<f64>, b: &Aabb) -> bool {
+pub(crate) fn upright_at(cam: &FrameCamera, to_cam: &Matrix4<f64>, b: &Aabb) -> bool {
     let c = Point3::from(b.center());
     let below = c - Vector3::new(0.0, 0.0, 0.1);
     let (Some((u0, v0, _)), Some((u1, v1, _))) = (

@@ -18,6 +18,7 @@ pub mod consensus;
 pub mod depth_fill;
 pub mod ensemble;
 pub mod export;
+pub mod floor_reach;
 pub mod fusion;
 pub mod hidden_base;
 pub mod knn;

@@ -123,6 +123,10 @@ pub struct SupportParams {
     /// edge hides the object's lower part in every view that shows it, when that edge is
     /// above the camera ([`super::hidden_base`]: a cup on a tall bookshelf seen from below).
     pub hidden_base: bool,
+    /// When no support is found below and the room's floor is known, set the bottom on
+    /// the floor when every view's 2D box says the object reaches it
+    /// ([`super::floor_reach`]: a floor lamp's pole, thinner than a depth pixel).
+    pub floor_reach: bool,
 }
 
 impl SupportParams {
@@ -198,6 +202,7 @@ impl Default for SupportParams {
             room_wall_search: 0.12,
             room_wall_colour: true,
             hidden_base: true,
+            floor_reach: true,
         }
     }
 }

@@ -1,0 +1,179 @@
+//! Tests of [`super`], on rendered scenes.
+
+use super::*;
+use crate::geometry::camera::transform_point;
+use crate::geometry::projection::{backproject_mask, BackprojectOptions};
+use crate::geometry::test_scene::{camera, render, room_slabs};
+use crate::geometry::{DepthMap, FrameCamera, Mask};
+
+type Block = ([f64; 3], [f64; 3]);
+
+/// A floor lamp in a 4 x 4 x 3 m room: a 4 cm pole under a 40 cm shade.
+const POLE: Block = ([1.98, 2.48, 0.0], [2.02, 2.52, 1.3]);
+const SHADE: Block = ([1.8, 2.3, 1.3], [2.2, 2.7, 1.6]);
+const RANGE: f64 = 6.0;
+
+fn world() -> Vec<Block> {
+    let mut w = room_slabs(4.0, 4.0, 3.0);
+    w.push(POLE);
+    w.push(SHADE);
+    w
+}
+
+/// The colour pixels where `object` is the first surface `cam` sees in `world`: the
+/// shade alone, as the depth segmenter gives it (the pole is under a pixel wide).
+fn mask_of(cam: &FrameCamera, world: &[Block], object: Block) -> (DepthMap, Mask) {
+    let all = render(cam, world, RANGE);
+    let alone = render(cam, &[object], RANGE);
+    let mut m = Mask::new(cam.color.width, cam.color.height);
+    for y in 0..m.height {
+        for x in 0..m.width {
+            let (u, v) = (f64::from(x), f64::from(y));
+            let hit = matches!(
+                (cam.depth_at_color(&all, u, v), cam.depth_at_color(&alone, u, v)),
+                (Some(a), Some(b)) if (a - b).abs() < 0.005
+            );
+            m.set(x, y, hit);
+        }
+    }
+    (all, m)
+}
+
+/// The image box of `blocks`' corners (a detector's box of their silhouette).
+fn image_box(cam: &FrameCamera, blocks: &[Block]) -> [f32; 4] {
+    let to_cam = cam.out_to_cam().expect("pose");
+    let mut r = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+    for (lo, hi) in blocks {
+        for i in 0..8 {
+            let c = |k: usize| if i >> k & 1 == 0 { lo[k] } else { hi[k] };
+            let p = transform_point(&to_cam, &Point3::new(c(0), c(1), c(2)));
+            let (u, v, _) = cam.color.project(&p).expect("in front");
+            r = [r[0].min(u), r[1].min(v), r[2].max(u), r[3].max(v)];
+        }
+    }
+    let w = f64::from(cam.color.width - 1);
+    let h = f64::from(cam.color.height - 1);
+    [
+        r[0].clamp(0.0, w) as f32,
+        r[1].clamp(0.0, h) as f32,
+        r[2].clamp(0.0, w) as f32,
+        r[3].clamp(0.0, h) as f32,
+    ]
+}
+
+fn seen_box(cam: &FrameCamera, depth: &DepthMap, mask: &Mask) -> Aabb {
+    let pts = backproject_mask(mask, cam, depth, BackprojectOptions::default()).expect("pose");
+    Aabb::from_points(&pts).expect("the shade is in view")
+}
+
+fn view<'a>(
+    index: usize,
+    camera: &'a FrameCamera,
+    depth: &'a DepthMap,
+    mask: &'a Mask,
+) -> SegmentedView<'a> {
+    SegmentedView {
+        index,
+        camera,
+        depth,
+        mask,
+        points: &[],
+        region: None,
+    }
+}
+
+fn front_camera() -> FrameCamera {
+    camera([2.0, 0.3, 1.4], [2.0, 2.5, 0.8])
+}
+
+#[test]
+fn a_lamp_whose_boxes_reach_the_floor_is_set_down_on_it() {
+    let cam = front_camera();
+    let (depth, mask) = mask_of(&cam, &world(), SHADE);
+    let b = seen_box(&cam, &depth, &mask);
+    assert!(b.min[2] > 1.2, "only the shade was measured: {b:?}");
+    let lamp = image_box(&cam, &[POLE, SHADE]);
+    let v = view(4, &cam, &depth, &mask);
+    let (out, record) = extend_to_floor_reach(&b, &[(&v, lamp)], 0.0, &GeometryParams::default());
+    let record = record.expect("a record");
+    assert_eq!(record.views[0].reaches_floor, Some(true), "{record:?}");
+    assert_eq!(out.min[2], 0.0, "{record:?}");
+    assert_eq!(
+        (out.max, out.min[0], out.min[1]),
+        (b.max, b.min[0], b.min[1])
+    );
+    // The shade's own box says the object ends where it was measured.
+    let shade = image_box(&cam, &[SHADE]);
+    let (out, record) = extend_to_floor_reach(&b, &[(&v, shade)], 0.0, &GeometryParams::default());
+    let record = record.expect("a record");
+    assert_eq!(out, b, "{record:?}");
+    assert_eq!(record.views[0].reaches_floor, Some(false), "{record:?}");
+}
+
+#[test]
+fn one_view_whose_box_ends_at_the_shade_vetoes_the_move() {
+    let cam = front_camera();
+    let (depth, mask) = mask_of(&cam, &world(), SHADE);
+    let b = seen_box(&cam, &depth, &mask);
+    let side = camera([0.4, 1.0, 1.5], [2.0, 2.5, 1.0]);
+    let (side_depth, side_mask) = mask_of(&side, &world(), SHADE);
+    let (a, s) = (
+        view(1, &cam, &depth, &mask),
+        view(2, &side, &side_depth, &side_mask),
+    );
+    let gp = GeometryParams::default();
+    let both = [
+        (&a, image_box(&cam, &[POLE, SHADE])),
+        (&s, image_box(&side, &[POLE, SHADE])),
+    ];
+    assert_eq!(extend_to_floor_reach(&b, &both, 0.0, &gp).0.min[2], 0.0);
+    let veto = [
+        (&a, image_box(&cam, &[POLE, SHADE])),
+        (&s, image_box(&side, &[SHADE])),
+    ];
+    let (out, record) = extend_to_floor_reach(&b, &veto, 0.0, &gp);
+    assert_eq!(out, b, "{record:?}");
+}
+
+#[test]
+fn a_box_on_the_lower_border_a_bottom_near_the_floor_or_no_view_say_nothing() {
+    let cam = front_camera();
+    let (depth, mask) = mask_of(&cam, &world(), SHADE);
+    let b = seen_box(&cam, &depth, &mask);
+    let v = view(3, &cam, &depth, &mask);
+    let gp = GeometryParams::default();
+    // The box cut by the image's lower border: the view is not read.
+    let mut cut = image_box(&cam, &[POLE, SHADE]);
+    cut[3] = (cam.color.height - 1) as f32;
+    let (out, record) = extend_to_floor_reach(&b, &[(&v, cut)], 0.0, &gp);
+    assert_eq!(out, b);
+    assert_eq!(record.expect("a record").views[0].reaches_floor, None);
+    // A box already standing within reach of the floor, or no view: no record.
+    let mut low = b;
+    low.min[2] = 0.03;
+    let lamp = image_box(&cam, &[POLE, SHADE]);
+    assert_eq!(
+        extend_to_floor_reach(&low, &[(&v, lamp)], 0.0, &gp),
+        (low, None)
+    );
+    assert_eq!(extend_to_floor_reach(&b, &[], 0.0, &gp), (b, None));
+}
+
+#[test]
+fn a_cup_on_a_table_with_a_loose_box_stays_on_the_table() {
+    const TABLE: Block = ([1.5, 2.0, 0.0], [2.5, 3.0, 0.75]);
+    const CUP: Block = ([1.95, 2.3, 0.75], [2.05, 2.4, 0.87]);
+    let mut w = room_slabs(4.0, 4.0, 3.0);
+    w.extend([TABLE, CUP]);
+    let cam = front_camera();
+    let (depth, mask) = mask_of(&cam, &w, CUP);
+    let b = seen_box(&cam, &depth, &mask);
+    let v = view(5, &cam, &depth, &mask);
+    // Two pixels below the cup's silhouette.
+    let mut loose = image_box(&cam, &[CUP]);
+    loose[3] += 2.0;
+    let (out, record) = extend_to_floor_reach(&b, &[(&v, loose)], 0.0, &GeometryParams::default());
+    let record = record.expect("a record");
+    assert_eq!(record.views[0].reaches_floor, Some(false), "{record:?}");
+    assert_eq!(out, b);
+}
