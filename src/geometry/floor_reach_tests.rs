@@ -2,9 +2,10 @@
 
 use super::*;
 use crate::geometry::camera::transform_point;
-use crate::geometry::projection::{backproject_mask, BackprojectOptions};
-use crate::geometry::test_scene::{camera, render, room_slabs};
-use crate::geometry::{DepthMap, FrameCamera, Mask};
+use crate::geometry::test_scene::{
+    camera, first_surface_mask, room_slabs, seen_box, segmented_view,
+};
+use crate::geometry::FrameCamera;
 
 type Block = ([f64; 3], [f64; 3]);
 
@@ -18,25 +19,6 @@ fn world() -> Vec<Block> {
     w.push(POLE);
     w.push(SHADE);
     w
-}
-
-/// The colour pixels where `object` is the first surface `cam` sees in `world`: the
-/// shade alone, as the depth segmenter gives it (the pole is under a pixel wide).
-fn mask_of(cam: &FrameCamera, world: &[Block], object: Block) -> (DepthMap, Mask) {
-    let all = render(cam, world, RANGE);
-    let alone = render(cam, &[object], RANGE);
-    let mut m = Mask::new(cam.color.width, cam.color.height);
-    for y in 0..m.height {
-        for x in 0..m.width {
-            let (u, v) = (f64::from(x), f64::from(y));
-            let hit = matches!(
-                (cam.depth_at_color(&all, u, v), cam.depth_at_color(&alone, u, v)),
-                (Some(a), Some(b)) if (a - b).abs() < 0.005
-            );
-            m.set(x, y, hit);
-        }
-    }
-    (all, m)
 }
 
 /// The image box of `blocks`' corners (a detector's box of their silhouette).
@@ -61,27 +43,6 @@ fn image_box(cam: &FrameCamera, blocks: &[Block]) -> [f32; 4] {
     ]
 }
 
-fn seen_box(cam: &FrameCamera, depth: &DepthMap, mask: &Mask) -> Aabb {
-    let pts = backproject_mask(mask, cam, depth, BackprojectOptions::default()).expect("pose");
-    Aabb::from_points(&pts).expect("the shade is in view")
-}
-
-fn view<'a>(
-    index: usize,
-    camera: &'a FrameCamera,
-    depth: &'a DepthMap,
-    mask: &'a Mask,
-) -> SegmentedView<'a> {
-    SegmentedView {
-        index,
-        camera,
-        depth,
-        mask,
-        points: &[],
-        region: None,
-    }
-}
-
 fn front_camera() -> FrameCamera {
     camera([2.0, 0.3, 1.4], [2.0, 2.5, 0.8])
 }
@@ -89,11 +50,11 @@ fn front_camera() -> FrameCamera {
 #[test]
 fn a_lamp_whose_boxes_reach_the_floor_is_set_down_on_it() {
     let cam = front_camera();
-    let (depth, mask) = mask_of(&cam, &world(), SHADE);
+    let (depth, mask) = first_surface_mask(&cam, &world(), SHADE, RANGE);
     let b = seen_box(&cam, &depth, &mask);
     assert!(b.min[2] > 1.2, "only the shade was measured: {b:?}");
     let lamp = image_box(&cam, &[POLE, SHADE]);
-    let v = view(4, &cam, &depth, &mask);
+    let v = segmented_view(4, &cam, &depth, &mask);
     let (out, record) = extend_to_floor_reach(&b, &[(&v, lamp)], 0.0, &GeometryParams::default());
     let record = record.expect("a record");
     assert_eq!(record.views[0].reaches_floor, Some(true), "{record:?}");
@@ -113,13 +74,13 @@ fn a_lamp_whose_boxes_reach_the_floor_is_set_down_on_it() {
 #[test]
 fn one_view_whose_box_ends_at_the_shade_vetoes_the_move() {
     let cam = front_camera();
-    let (depth, mask) = mask_of(&cam, &world(), SHADE);
+    let (depth, mask) = first_surface_mask(&cam, &world(), SHADE, RANGE);
     let b = seen_box(&cam, &depth, &mask);
     let side = camera([0.4, 1.0, 1.5], [2.0, 2.5, 1.0]);
-    let (side_depth, side_mask) = mask_of(&side, &world(), SHADE);
+    let (side_depth, side_mask) = first_surface_mask(&side, &world(), SHADE, RANGE);
     let (a, s) = (
-        view(1, &cam, &depth, &mask),
-        view(2, &side, &side_depth, &side_mask),
+        segmented_view(1, &cam, &depth, &mask),
+        segmented_view(2, &side, &side_depth, &side_mask),
     );
     let gp = GeometryParams::default();
     let both = [
@@ -138,9 +99,9 @@ fn one_view_whose_box_ends_at_the_shade_vetoes_the_move() {
 #[test]
 fn a_box_on_the_lower_border_a_bottom_near_the_floor_or_no_view_say_nothing() {
     let cam = front_camera();
-    let (depth, mask) = mask_of(&cam, &world(), SHADE);
+    let (depth, mask) = first_surface_mask(&cam, &world(), SHADE, RANGE);
     let b = seen_box(&cam, &depth, &mask);
-    let v = view(3, &cam, &depth, &mask);
+    let v = segmented_view(3, &cam, &depth, &mask);
     let gp = GeometryParams::default();
     // The box cut by the image's lower border: the view is not read.
     let mut cut = image_box(&cam, &[POLE, SHADE]);
@@ -166,9 +127,9 @@ fn a_cup_on_a_table_with_a_loose_box_stays_on_the_table() {
     let mut w = room_slabs(4.0, 4.0, 3.0);
     w.extend([TABLE, CUP]);
     let cam = front_camera();
-    let (depth, mask) = mask_of(&cam, &w, CUP);
+    let (depth, mask) = first_surface_mask(&cam, &w, CUP, RANGE);
     let b = seen_box(&cam, &depth, &mask);
-    let v = view(5, &cam, &depth, &mask);
+    let v = segmented_view(5, &cam, &depth, &mask);
     // Two pixels below the cup's silhouette.
     let mut loose = image_box(&cam, &[CUP]);
     loose[3] += 2.0;

@@ -1,8 +1,9 @@
 //! Tests of [`super`], on rendered scenes.
 
 use super::*;
-use crate::geometry::projection::{backproject_mask, BackprojectOptions};
-use crate::geometry::test_scene::{camera, render, room_slabs};
+use crate::geometry::test_scene::{
+    camera, first_surface_mask, room_slabs, seen_box, segmented_view,
+};
 use crate::geometry::Mask;
 
 type Block = ([f64; 3], [f64; 3]);
@@ -15,47 +16,6 @@ const RANGE: f64 = 6.0;
 
 fn gp() -> GeometryParams {
     GeometryParams::default()
-}
-
-/// A view of the object for the rule (it reads neither points nor regions).
-fn view<'a>(
-    index: usize,
-    camera: &'a FrameCamera,
-    depth: &'a DepthMap,
-    mask: &'a Mask,
-) -> SegmentedView<'a> {
-    SegmentedView {
-        index,
-        camera,
-        depth,
-        mask,
-        points: &[],
-        region: None,
-    }
-}
-
-/// The colour pixels where `object` is the first surface `cam` sees in `world`.
-fn mask_of(cam: &FrameCamera, world: &[Block], object: Block) -> (DepthMap, Mask) {
-    let all = render(cam, world, RANGE);
-    let alone = render(cam, &[object], RANGE);
-    let mut m = Mask::new(cam.color.width, cam.color.height);
-    for y in 0..m.height {
-        for x in 0..m.width {
-            let (u, v) = (f64::from(x), f64::from(y));
-            let hit = matches!(
-                (cam.depth_at_color(&all, u, v), cam.depth_at_color(&alone, u, v)),
-                (Some(a), Some(b)) if (a - b).abs() < 0.005
-            );
-            m.set(x, y, hit);
-        }
-    }
-    (all, m)
-}
-
-/// The box of what `cam` measured of the object.
-fn seen_box(cam: &FrameCamera, depth: &DepthMap, mask: &Mask) -> Aabb {
-    let pts = backproject_mask(mask, cam, depth, BackprojectOptions::default()).expect("pose");
-    Aabb::from_points(&pts).expect("the object is in view")
 }
 
 fn world(with_cabinet: bool) -> Vec<Block> {
@@ -71,11 +31,11 @@ fn world(with_cabinet: bool) -> Vec<Block> {
 fn a_box_seen_from_below_over_a_tall_cabinets_edge_is_set_down_on_the_cabinet() {
     let world = world(true);
     let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
-    let (depth, mask) = mask_of(&cam, &world, ON_TOP);
+    let (depth, mask) = first_surface_mask(&cam, &world, ON_TOP, RANGE);
     let b = seen_box(&cam, &depth, &mask);
     // The edge hides the box's lower part: what was measured starts well above the top.
     assert!(b.min[2] > CABINET.1[2] + 0.06, "{b:?}");
-    let view = view(7, &cam, &depth, &mask);
+    let view = segmented_view(7, &cam, &depth, &mask);
     let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     assert_eq!(record.views.len(), 1);
@@ -108,13 +68,13 @@ fn an_edge_below_the_eye_is_not_read_as_a_hidden_base() {
     let mut world = room_slabs(4.0, 4.0, 3.0);
     world.extend([TABLE, CHAIR]);
     let cam = camera([2.0, 1.0, 1.2], [2.0, 2.8, 0.6]);
-    let (depth, mask) = mask_of(&cam, &world, CHAIR);
+    let (depth, mask) = first_surface_mask(&cam, &world, CHAIR, RANGE);
     let b = seen_box(&cam, &depth, &mask);
     assert!(
         b.min[2] > 0.3,
         "the table hides the block's lower part: {b:?}"
     );
-    let view = view(1, &cam, &depth, &mask);
+    let view = segmented_view(1, &cam, &depth, &mask);
     let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     let v = &record.views[0];
@@ -129,10 +89,10 @@ fn an_object_seen_standing_on_its_support_reads_open() {
     // From above the cabinet, the box's bottom meets the cabinet's top in view.
     let world = world(true);
     let high = camera([2.0, 1.3, 2.6], [2.0, 2.7, 2.0]);
-    let (depth, mask) = mask_of(&high, &world, ON_TOP);
+    let (depth, mask) = first_surface_mask(&high, &world, ON_TOP, RANGE);
     let mut b = seen_box(&high, &depth, &mask);
     b.min[2] += 0.1;
-    let view = view(1, &high, &depth, &mask);
+    let view = segmented_view(1, &high, &depth, &mask);
     let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     assert_eq!(record.views[0].reads, BaseReading::Open, "{record:?}");
@@ -144,13 +104,13 @@ fn a_view_that_sees_the_bottom_in_the_open_vetoes_the_move() {
     // The box floating with nothing under it: below its mask lies the far wall.
     let open_world = world(false);
     let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
-    let (d_open, m_open) = mask_of(&cam, &open_world, ON_TOP);
-    let open = view(2, &cam, &d_open, &m_open);
+    let (d_open, m_open) = first_surface_mask(&cam, &open_world, ON_TOP, RANGE);
+    let open = segmented_view(2, &cam, &d_open, &m_open);
     // The box as the cabinet's edge cuts it, and the view that shows that edge.
     let shelf_world = world(true);
-    let (d_shelf, m_shelf) = mask_of(&cam, &shelf_world, ON_TOP);
+    let (d_shelf, m_shelf) = first_surface_mask(&cam, &shelf_world, ON_TOP, RANGE);
     let b = seen_box(&cam, &d_shelf, &m_shelf);
-    let shelf = view(3, &cam, &d_shelf, &m_shelf);
+    let shelf = segmented_view(3, &cam, &d_shelf, &m_shelf);
     let (alone, _) = extend_to_hidden_base(&b, &[&shelf], &gp());
     assert!(alone.min[2] < b.min[2] - 0.05, "{alone:?}");
     let (out, record) = extend_to_hidden_base(&b, &[&shelf, &open], &gp());
@@ -163,7 +123,7 @@ fn a_view_that_sees_the_bottom_in_the_open_vetoes_the_move() {
 fn a_view_looking_sideways_or_a_mask_on_the_lower_border_says_nothing() {
     let world = world(true);
     let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
-    let (depth, mask) = mask_of(&cam, &world, ON_TOP);
+    let (depth, mask) = first_surface_mask(&cam, &world, ON_TOP, RANGE);
     let b = seen_box(&cam, &depth, &mask);
     // A mask on the image's two lower rows, under every column the object covers.
     let mut low = Mask::new(mask.width, mask.height);
@@ -173,12 +133,12 @@ fn a_view_looking_sideways_or_a_mask_on_the_lower_border_says_nothing() {
             low.set(x, mask.height - 2, true);
         }
     }
-    let bordered = view(4, &cam, &depth, &low);
+    let bordered = segmented_view(4, &cam, &depth, &low);
     // A camera rolled by 90 degrees: "down" runs across its image.
     let mut rolled = cam;
     let roll = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 90f64.to_radians());
     rolled.pose *= roll.to_homogeneous();
-    let sideways = view(5, &rolled, &depth, &mask);
+    let sideways = segmented_view(5, &rolled, &depth, &mask);
     let (out, record) = extend_to_hidden_base(&b, &[&bordered, &sideways], &gp());
     let record = record.expect("the views were looked at");
     assert!(
@@ -195,7 +155,7 @@ fn a_loose_mask_over_the_wall_behind_still_finds_the_edge() {
     // object's.
     let world = world(true);
     let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
-    let (depth, tight) = mask_of(&cam, &world, ON_TOP);
+    let (depth, tight) = first_surface_mask(&cam, &world, ON_TOP, RANGE);
     let b = seen_box(&cam, &depth, &tight);
     let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
     for y in 0..tight.height {
@@ -216,7 +176,7 @@ fn a_loose_mask_over_the_wall_behind_still_finds_the_edge() {
         ],
     );
     assert!(loose.count() > 2 * tight.count());
-    let view = view(0, &cam, &depth, &loose);
+    let view = segmented_view(0, &cam, &depth, &loose);
     let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     assert_eq!(
@@ -234,7 +194,7 @@ fn a_mask_that_stops_well_short_of_the_objects_bottom_still_finds_the_edge() {
     // to the edge.
     let world = world(true);
     let cam = camera([2.0, 1.3, 1.2], [2.0, 2.7, 2.0]);
-    let (depth, full) = mask_of(&cam, &world, ON_TOP);
+    let (depth, full) = first_surface_mask(&cam, &world, ON_TOP, RANGE);
     let b = seen_box(&cam, &depth, &full);
     let rows: Vec<u32> = (0..full.height)
         .filter(|&y| (0..full.width).any(|x| full.get(x, y)))
@@ -246,7 +206,7 @@ fn a_mask_that_stops_well_short_of_the_objects_bottom_still_finds_the_edge() {
             top.set(x, y, full.get(x, y));
         }
     }
-    let view = view(0, &cam, &depth, &top);
+    let view = segmented_view(0, &cam, &depth, &top);
     let (out, record) = extend_to_hidden_base(&b, &[&view], &gp());
     let record = record.expect("the view was read");
     assert_eq!(

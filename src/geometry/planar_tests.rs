@@ -195,21 +195,10 @@ fn a_window_no_frame_measured_gets_its_depth_in_front_of_the_rooms_wall() {
 
 #[test]
 fn a_window_frame_measured_before_glass_ended_on_the_rooms_wall_is_the_front() {
-    use crate::geometry::RoomLayout;
     // The sensor read no depth on the glass: depth completion put those points on the
     // room's wall y = 6.11, two thirds of the window. The frame, a 10 cm border, was
     // measured 5 cm in front of it (with 5 mm of noise).
-    let room = RoomLayout {
-        angle_deg: 0.0,
-        u: [Some(0.0), Some(5.0)],
-        v: [Some(0.0), Some(6.11)],
-        faced: [true; 4],
-        floor: Some(0.0),
-        ceiling: None,
-        reach: [[0.0, 5.0], [0.0, 6.11], [0.0, 2.5]],
-        range: 5.0,
-        points: 1000,
-    };
+    let room = crate::geometry::test_scene::room_box(0.0, 5.0, 6.11, 2.5);
     let frame = |p: &Point3<f64>| p.x < 0.8 || p.x > 1.8 || p.z < 1.1 || p.z > 2.0;
     let window: Vec<Point3<f64>> = plane_y(6.11, (0.7, 1.9), (1.0, 2.1), 0.0, None)
         .into_iter()

@@ -91,3 +91,51 @@ pub(crate) fn room_box(angle: f64, w: f64, d: f64, h: f64) -> RoomLayout {
         points: 1000,
     }
 }
+
+/// The colour pixels where `object` is the first surface `cam` sees in `world` (a
+/// segmenter's perfect mask of what depth measured of it), and the depth of `world`.
+pub(crate) fn first_surface_mask(
+    cam: &FrameCamera,
+    world: &[([f64; 3], [f64; 3])],
+    object: ([f64; 3], [f64; 3]),
+    range: f64,
+) -> (DepthMap, super::Mask) {
+    let all = render(cam, world, range);
+    let alone = render(cam, &[object], range);
+    let mut m = super::Mask::new(cam.color.width, cam.color.height);
+    for y in 0..m.height {
+        for x in 0..m.width {
+            let (u, v) = (f64::from(x), f64::from(y));
+            let hit = matches!(
+                (cam.depth_at_color(&all, u, v), cam.depth_at_color(&alone, u, v)),
+                (Some(a), Some(b)) if (a - b).abs() < 0.005
+            );
+            m.set(x, y, hit);
+        }
+    }
+    (all, m)
+}
+
+/// The box of what `cam` measured under `mask`.
+pub(crate) fn seen_box(cam: &FrameCamera, depth: &DepthMap, mask: &super::Mask) -> super::Aabb {
+    use super::projection::{backproject_mask, BackprojectOptions};
+    let pts = backproject_mask(mask, cam, depth, BackprojectOptions::default()).expect("pose");
+    super::Aabb::from_points(&pts).expect("the object is in view")
+}
+
+/// A segmented view of `mask` (no points, no region).
+pub(crate) fn segmented_view<'a>(
+    index: usize,
+    camera: &'a FrameCamera,
+    depth: &'a DepthMap,
+    mask: &'a super::Mask,
+) -> super::fusion::SegmentedView<'a> {
+    super::fusion::SegmentedView {
+        index,
+        camera,
+        depth,
+        mask,
+        points: &[],
+        region: None,
+    }
+}
