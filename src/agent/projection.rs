@@ -392,7 +392,14 @@ pub async fn run(
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
     // The chosen box, when drawn on the image (not a candidate's), and the room's floor.
     let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
-    let floor = walls.as_deref().and_then(|r| r.floor);
+    let sp = &g.params.geometry.support;
+    let floor = match &walls {
+        _ if !(down && sp.enabled && sp.floor_reach && g.params.geometry.layout.enabled) => None,
+        Some(room) => room.floor,
+        None => scene_room(ctx, g.params.geometry.layout.clone())
+            .await?
+            .and_then(|r| r.floor),
+    };
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
