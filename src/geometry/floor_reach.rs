@@ -29,7 +29,7 @@ use serde::Serialize;
 
 use super::camera::transform_point;
 use super::fusion::SegmentedView;
-use super::hidden_base::upright_at;
+use super::hidden_base::{object_depth, readable, upright_at};
 use super::{Aabb, GeometryParams};
 
 /// What a view's box says of where the object ends below.
@@ -95,7 +95,6 @@ fn read_view(
     params: &GeometryParams,
 ) -> ReachVerdict {
     let cam = view.camera;
-    let m = view.mask;
     let mut verdict = ReachVerdict {
         index: view.index,
         mask_bottom: None,
@@ -103,28 +102,12 @@ fn read_view(
         floor_hit: None,
         reaches_floor: None,
     };
-    let Ok(to_cam) = cam.out_to_cam() else {
+    let Some((_, to_out)) = readable(view).filter(|(to_cam, _)| upright_at(cam, to_cam, b)) else {
         return verdict;
     };
-    if cam.check_depth(view.depth).is_err()
-        || m.width != cam.color.width
-        || m.height != cam.color.height
-        || !upright_at(cam, &to_cam, b)
-    {
-        return verdict;
-    }
-    let to_out = cam.cam_to_out();
     // The object's lowest measured pixel: a mask pixel whose point lies in the box.
-    let (w, h) = (m.width, m.height);
-    let measured = |x: u32, y: u32| {
-        m.get(x, y)
-            && cam
-                .depth_at_color(view.depth, f64::from(x), f64::from(y))
-                .is_some_and(|d| {
-                    let p = cam.color.unproject(f64::from(x), f64::from(y), d);
-                    b.contains(&transform_point(&to_out, &p), params.support.layer)
-                })
-    };
+    let (w, h) = (view.mask.width, view.mask.height);
+    let measured = |x: u32, y: u32| object_depth(view, &to_out, b, params, x, y).is_some();
     let Some(bottom) = (0..h).rev().find(|&y| (0..w).any(|x| measured(x, y))) else {
         return verdict;
     };

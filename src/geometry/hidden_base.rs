@@ -120,16 +120,9 @@ pub fn extend_to_hidden_base(
 /// view's pose is unusable or its mask is empty.
 fn read_view(view: &SegmentedView<'_>, b: &Aabb, params: &GeometryParams) -> Option<BaseVerdict> {
     let cam = view.camera;
-    let to_cam = cam.out_to_cam().ok()?;
-    if cam.check_depth(view.depth).is_err() {
-        return None;
-    }
+    let (to_cam, to_out) = readable(view)?;
     let m = view.mask;
     let (w, h) = (m.width, m.height);
-    if w != cam.color.width || h != cam.color.height {
-        return None;
-    }
-    let to_out = cam.cam_to_out();
     let eye_z = cam.centre().z;
     let unread = |columns, occluded| BaseVerdict {
         index: view.index,
@@ -148,16 +141,7 @@ fn read_view(view: &SegmentedView<'_>, b: &Aabb, params: &GeometryParams) -> Opt
     let reach = min_reach.max(box_height(cam, &to_cam, b).min(f64::from(h)) as u32);
     let mut columns = 0;
     let mut edge: Vec<f64> = Vec::new();
-    // A mask pixel is the object's when what it measured lies in the box: a loose mask
-    // (a box-shaped one, or one that spilled onto the wall behind) does not set the border.
-    let object_depth = |x: u32, y: u32| {
-        if !m.get(x, y) {
-            return None;
-        }
-        let d = reading(cam, view.depth, x, y)?;
-        let p = transform_point(&to_out, &cam.color.unproject(f64::from(x), f64::from(y), d));
-        b.contains(&p, params.support.layer).then_some(d)
-    };
+    let object_depth = |x: u32, y: u32| object_depth(view, &to_out, b, params, x, y);
     for x in 0..w {
         // The object's lowest pixel in the column and its depth.
         let Some((bottom, inside)) = (0..h).rev().find_map(|y| Some((y, object_depth(x, y)?)))
@@ -224,6 +208,38 @@ fn read_view(view: &SegmentedView<'_>, b: &Aabb, params: &GeometryParams) -> Opt
             BaseReading::EdgeBelowEye
         },
     })
+}
+
+/// The transforms (world to camera, camera to world) of a view whose pose inverts, whose
+/// depth map fits its camera and whose mask is the colour image's size; `None` otherwise.
+pub(crate) fn readable(view: &SegmentedView<'_>) -> Option<(Matrix4<f64>, Matrix4<f64>)> {
+    let cam = view.camera;
+    let to_cam = cam.out_to_cam().ok()?;
+    let fits = cam.check_depth(view.depth).is_ok()
+        && view.mask.width == cam.color.width
+        && view.mask.height == cam.color.height;
+    fits.then(|| (to_cam, cam.cam_to_out()))
+}
+
+/// The depth (m) of mask pixel (x, y) of `view` when the point it measured lies in `b`
+/// (within `support.layer`): the object's pixels, so a loose mask (a box-shaped one, or one
+/// that spilled onto the wall behind) does not set where the object ends. `to_out` is the
+/// view's camera-to-world transform.
+pub(crate) fn object_depth(
+    view: &SegmentedView<'_>,
+    to_out: &Matrix4<f64>,
+    b: &Aabb,
+    params: &GeometryParams,
+    x: u32,
+    y: u32,
+) -> Option<f64> {
+    if !view.mask.get(x, y) {
+        return None;
+    }
+    let cam = view.camera;
+    let d = reading(cam, view.depth, x, y)?;
+    let p = transform_point(to_out, &cam.color.unproject(f64::from(x), f64::from(y), d));
+    b.contains(&p, params.support.layer).then_some(d)
 }
 
 /// Height in pixels of `b`'s corners' projections into `cam` (0 when one is behind it).

@@ -293,7 +293,7 @@ pub fn snap_planar_to_wall(
         // On its wall: the points the sensor measured in front of it (depth completion put
         // the others there) are the object's front, when they stand apart from the wall;
         // a window's frame before its unmeasured glass.
-        let seen_front = on_wall.zip(room).and_then(|(k, room)| {
+        let seen_front = on_wall.zip(room).zip(wall).and_then(|((k, room), wall)| {
             let seen: Vec<Point3<f64>> = anchor
                 .iter()
                 .filter(|q| {
@@ -316,8 +316,7 @@ pub fn snap_planar_to_wall(
                 p.planar_front_share,
                 p.planar_max_depth,
             );
-            let w = room.walls_on_axis(a, &centre).get(k).copied()?;
-            (sign * (w - f) >= MIN_DEPTH).then_some(f)
+            (sign * (wall - f) >= MIN_DEPTH).then_some(f)
         });
         snaps.push(PlanarSnap {
             axis: NAMES[a],
