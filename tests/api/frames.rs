@@ -51,14 +51,12 @@ async fn remove(app: &TestApp, id: &str, name: &str) -> (u16, Value) {
 
 async fn start_job(app: &TestApp, id: &str) -> String {
     let job = app.submit_job(id, "the chair").await;
-    let t = std::time::Instant::now();
-    loop {
-        let (_, j) = app.get_json(&format!("/v1/jobs/{job}")).await;
-        if j["status"] == "running" {
-            return job;
-        }
-        assert!(t.elapsed() < Duration::from_secs(10), "job never ran: {j}");
-        tokio::time::sleep(Duration::from_millis(10)).await;
+    match app
+        .wait_status(&job, "running", Duration::from_secs(10))
+        .await
+    {
+        Ok(_) => job,
+        Err(j) => panic!("job never ran: {j}"),
     }
 }
 

@@ -143,6 +143,27 @@ impl TestApp {
         }
     }
 
+    /// Poll a job until its status is `status`: `Ok` with the job's document then, `Err`
+    /// with the last document seen when the timeout passed first.
+    pub async fn wait_status(
+        &self,
+        id: &str,
+        status: &str,
+        timeout: Duration,
+    ) -> Result<serde_json::Value, serde_json::Value> {
+        let start = std::time::Instant::now();
+        loop {
+            let (_, j) = self.get_json(&format!("/v1/jobs/{id}")).await;
+            if j["status"] == status {
+                return Ok(j);
+            }
+            if start.elapsed() > timeout {
+                return Err(j);
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
     /// Stop the server gracefully and wait for it.
     pub async fn stop(mut self) -> Option<tempfile::TempDir> {
         if let Some(tx) = self.stop.take() {

@@ -228,16 +228,12 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     let app = TestApp::spawn_with(cfg).await;
     let sid = app.upload_tiny_scene(4).await;
     let id = app.submit_job(&sid, "the sofa").await;
-    let mut running = false;
-    for _ in 0..400 {
-        let (_, s) = app.get_json(&format!("/v1/jobs/{id}")).await;
-        if s["status"] == "running" {
-            running = true;
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
+    if let Err(j) = app
+        .wait_status(&id, "running", Duration::from_secs(2))
+        .await
+    {
+        panic!("the job never started: {j}");
     }
-    assert!(running, "the job never started");
 
     let r = app.delete(&format!("/v1/scenes/{sid}")).await;
     assert_eq!(r.status().as_u16(), 409);

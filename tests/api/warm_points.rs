@@ -60,14 +60,11 @@ async fn the_warmed_points_wait_for_a_running_job_and_equal_the_computed_ones() 
     let r = app.create_job(&a, "the box").await;
     let job: serde_json::Value = r.json().await.unwrap();
     let id = job["id"].as_str().unwrap().to_string();
-    let t = Instant::now();
-    loop {
-        let (_, j) = app.get_json(&format!("/v1/jobs/{id}")).await;
-        if j["status"] == "running" {
-            break;
-        }
-        assert!(t.elapsed() < Duration::from_secs(10), "job never ran: {j}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
+    if let Err(j) = app
+        .wait_status(&id, "running", Duration::from_secs(10))
+        .await
+    {
+        panic!("job never ran: {j}");
     }
     let b = upload_tiny(&app).await;
     tokio::time::sleep(Duration::from_millis(800)).await;
@@ -102,10 +99,11 @@ async fn a_stopping_service_ends_its_warming_and_writes_nothing_after() {
     let r = app.create_job(&a, "the box").await;
     let job: serde_json::Value = r.json().await.unwrap();
     let id = job["id"].as_str().unwrap().to_string();
-    let t = Instant::now();
-    while app.get_json(&format!("/v1/jobs/{id}")).await.1["status"] != "running" {
-        assert!(t.elapsed() < Duration::from_secs(10), "job never ran");
-        tokio::time::sleep(Duration::from_millis(20)).await;
+    if let Err(j) = app
+        .wait_status(&id, "running", Duration::from_secs(10))
+        .await
+    {
+        panic!("job never ran: {j}");
     }
     let b = upload_tiny(&app).await;
     tokio::time::sleep(Duration::from_millis(300)).await;
