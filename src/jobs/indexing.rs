@@ -138,15 +138,24 @@ impl Indexer {
     }
 
     /// Index `scene_id` from frame `from` in the background, claiming it as `how` allows.
+    /// The job system's shutdown waits for it: a stopping service ends it between frames
+    /// and frees the lease, leaving the scene `indexing` for a restart (or another
+    /// replica) to resume at once.
     pub fn start(self: &Arc<Self>, scene_id: String, from: usize, how: Claim) {
         let me = self.clone();
-        tokio::spawn(async move { me.run(scene_id, from, how).await });
+        self.jobs
+            .spawn_background(async move { me.run(scene_id, from, how).await });
     }
 
     /// Take the scene's indexing lease as `owner`. [`Claim::Start`] waits while another
-    /// indexer holds it; the others give up at once. False when not taken.
+    /// indexer holds it (until the service stops); the others give up at once. False when
+    /// not taken.
     async fn claim(&self, id: &str, owner: &str, how: Claim) -> Result<bool, StoreError> {
+        let stopping = self.jobs.stopping();
         loop {
+            if stopping.is_cancelled() {
+                return Ok(false);
+            }
             if self.store.claim_indexing(id, owner, how).await? {
                 return Ok(true);
             }
@@ -157,7 +166,10 @@ impl Indexer {
                 // Freed meanwhile, or the scene is gone or hidden.
                 return self.store.claim_indexing(id, owner, how).await;
             }
-            tokio::time::sleep(period(&self.store)).await;
+            tokio::select! {
+                _ = tokio::time::sleep(period(&self.store)) => {}
+                _ = stopping.cancelled() => return Ok(false),
+            }
         }
     }
 
@@ -183,7 +195,15 @@ impl Indexer {
             lost.clone(),
         )));
         // At most `max_concurrent_indexing` scenes at once; the others wait here.
-        let _slot = jobs.indexing_slot().await;
+        let stopping = jobs.stopping();
+        let _slot = tokio::select! {
+            s = jobs.indexing_slot() => s,
+            _ = stopping.cancelled() => {
+                drop(keeper);
+                self.release(&scene_id, &owner, false).await;
+                return;
+            }
+        };
         if let Err(e) = store.begin_index_attempt(&scene_id).await {
             tracing::error!(scene = %scene_id, "cannot count the indexing attempt: {e}");
         }
@@ -200,6 +220,14 @@ impl Indexer {
             }
         };
         drop(keeper);
+        let outcome = match outcome {
+            Ok(Indexed::Stopped) => {
+                self.release(&scene_id, &owner, true).await;
+                return;
+            }
+            Ok(Indexed::Done) => Ok(()),
+            Err(e) => Err(e),
+        };
         if outcome.is_ok() {
             jobs.warm_scene_points(&scene_id);
         }
@@ -237,6 +265,26 @@ impl Indexer {
         }
         jobs.wake();
     }
+
+    /// The service is stopping: free `owner`'s lease on the scene, which stays `indexing`
+    /// for a restart or another replica to resume at once. `uncount`: the attempt was
+    /// counted, and a stop is not the crash `max_index_attempts` counts.
+    async fn release(&self, scene_id: &str, owner: &str, uncount: bool) {
+        match self.store.release_indexing(scene_id, owner, uncount).await {
+            Ok(true) => {
+                tracing::info!(scene = %scene_id, "indexing stopped with the service; it resumes at the next start")
+            }
+            Ok(false) => {}
+            Err(e) => tracing::warn!(scene = %scene_id, "cannot free the indexing lease: {e}"),
+        }
+    }
+}
+
+/// How [`index_scene`] ended when it did not fail.
+enum Indexed {
+    Done,
+    /// The service began stopping: the frames indexed so far are stored, the rest not.
+    Stopped,
 }
 
 /// Aborts a task when dropped.
@@ -306,7 +354,7 @@ async fn index_scene(
     detector: Option<Arc<dyn Detector>>,
     candidates: Option<CandidateSetup>,
     from: usize,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Indexed> {
     let Some(detector) = detector else {
         anyhow::bail!("detector {key:?} could not be loaded (see /readyz)");
     };
@@ -341,7 +389,11 @@ async fn index_scene(
         }
         _ => None,
     };
+    let stopping = jobs.stopping();
     for frame in usable.into_iter().filter(|f| f.idx >= from) {
+        if stopping.is_cancelled() {
+            return Ok(Indexed::Stopped);
+        }
         let (d, l, c, r) = (
             detector.clone(),
             labels.clone(),
@@ -366,5 +418,5 @@ async fn index_scene(
         .map_err(|e| anyhow::anyhow!("the previews cannot be stored: {e}"))?;
     jobs.scene_cache()
         .put_unless_forgotten(scene_id, scene, mark);
-    Ok(())
+    Ok(Indexed::Done)
 }

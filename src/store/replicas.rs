@@ -192,6 +192,31 @@ impl Store {
         Ok(r.rows_affected() == 1)
     }
 
+    /// Free `owner`'s indexing lease and leave the scene as it is (`indexing`), for another
+    /// indexer to take at once; `uncount` takes back the attempt [`Self::begin_index_attempt`]
+    /// counted. False (nothing written) when the lease is no longer `owner`'s.
+    pub async fn release_indexing(
+        &self,
+        id: &str,
+        owner: &str,
+        uncount: bool,
+    ) -> Result<bool, StoreError> {
+        let attempts = if uncount {
+            "CASE WHEN index_attempts > 0 THEN index_attempts - 1 ELSE 0 END"
+        } else {
+            "index_attempts"
+        };
+        let r = sqlx::query(&self.sql(format!(
+            "UPDATE scenes SET index_owner = NULL, index_until = NULL, index_attempts = {attempts} \
+             WHERE id = ? AND index_owner = ?"
+        )))
+        .bind(id)
+        .bind(owner)
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
+    }
+
     /// Scenes `indexing` whose lease ran out (their indexer, or the replica that stored
     /// them before its indexer claimed them, died), with their attempts so far.
     pub async fn unclaimed_indexing(&self) -> Result<Vec<(String, i64)>, StoreError> {

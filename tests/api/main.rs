@@ -17,6 +17,7 @@ mod frames;
 mod helpers;
 mod hostile;
 mod idempotency;
+mod index_stop;
 mod internal_errors;
 mod jobs;
 mod keys;
