@@ -176,6 +176,19 @@ impl TestApp {
     }
 }
 
+/// Assert that scene document `s` is `ready` with all of its `usable` frames indexed.
+pub fn assert_indexed(s: &serde_json::Value, usable: i64) {
+    assert_eq!(
+        (
+            s["status"].as_str(),
+            s["index"]["done"].as_i64(),
+            s["index"]["total"].as_i64()
+        ),
+        (Some("ready"), Some(usable), Some(usable)),
+        "{s}"
+    );
+}
+
 /// Files of a tiny synthetic ScanNet-layout scene: (relative path, bytes).
 pub fn tiny_scene_files(frames: usize) -> Vec<(String, Vec<u8>)> {
     let (cw, ch, dw, dh) = (64u32, 48u32, 32u32, 24u32);

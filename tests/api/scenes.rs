@@ -314,15 +314,7 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
         panic!("indexing did not finish");
     };
     let s = wait_ready().await;
-    assert_eq!(
-        (
-            s["status"].as_str(),
-            s["index"]["done"].as_i64(),
-            s["index"]["total"].as_i64()
-        ),
-        (Some("ready"), Some(usable), Some(usable)),
-        "{s}"
-    );
+    assert_indexed(&s, usable);
     let store = crate::helpers::open_store(&app.data_dir).await;
     let dets = store.detections(&id, "oracle").await.unwrap();
     let n: usize = dets.values().map(Vec::len).sum();
