@@ -2,9 +2,9 @@
 //! box is segmented, the mask back-projected; other views that see those points are found
 //! by reprojection (our replacement for image matching), a box is segmented in each (a
 //! cached detection of the class, a candidate or the footprint's own box:
-//! [`super::ensemble_boxes`]; the VLM's box in one view when the chosen view saw a part and
-//! no view has a box holding it: [`super::view_box`]), and the views that agree (chamfer
-//! filter) are fused. Before the
+//! [`super::ensemble_boxes`]; the VLM's box in views left with the footprint when the
+//! chosen view saw a part and no view has a detection: [`super::view_box`]), and the views
+//! that agree (chamfer filter) are fused. Before the
 //! union, each kept view's points are checked against the other views' masks, and the
 //! union against the depth of the frames that see it (ours: `geometry::consensus`).
 

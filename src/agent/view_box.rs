@@ -1,13 +1,15 @@
-//! Ours: the whole object's box in one ensemble view, from the VLM (`[agent.candidates]
-//! view_box`). When the chosen view saw only a part of the object (`geometry::partial`)
-//! and no other view has a detection of the class or a class-agnostic candidate that
-//! holds the reprojected part, every view would segment the part alone and the box would
-//! stop where the chosen frame's edge cut the object (a window seen from up close, whose
-//! whole is seen only from across the room). The VLM is then shown the view most likely
-//! to hold all of the object, with the part outlined, and asked for the whole object's
-//! box there. The answer is used as a detection would be: only when it holds at least
-//! half the reprojected pixels ([`super::ensemble_boxes::pick_detection`]). It never fails
-//! the job: a refusal, an unusable box or a failed call keeps the view's footprint.
+//! Ours: the whole object's box in ensemble views, from the VLM (`[agent.candidates]
+//! view_box`). When the chosen view saw only a part of the object (`geometry::partial`),
+//! a view with no detection of the class or class-agnostic candidate holding the
+//! reprojected part segments that part alone, and the box would stop where the chosen
+//! frame's edge cut the object (a window seen from up close, whose whole is seen only from
+//! across the room). Unless some view has a detection of the class (which holds the whole
+//! object there), the VLM is shown up to `view_box_views` such views, those most likely to
+//! hold all of the object first, one call each, with the part outlined, and asked for the
+//! whole object's box there. An answer is used as a detection would be: only when it holds
+//! at least half the reprojected pixels ([`super::ensemble_boxes::pick_detection`]). It
+//! never fails the job: a refusal, an unusable box or a failed call keeps the view's
+//! footprint.
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -26,13 +28,13 @@ use crate::stitch::render::encode_jpeg;
 use crate::vlm::boxes::{parse_box, BoxAnswer};
 use crate::vlm::{CallBudget, ImageData, Message, VlmStep};
 
-/// The view to ask, as a position in `views` (`(footprint box, frame size)` each): the one
-/// whose footprint lies farthest inside its frame for its size (the smallest distance to
-/// an edge over the footprint's longer side), so that the rest of the object has the
-/// most room around the part there. A footprint within `border_frac` of the width from
-/// an edge is cut in that view too, and is not asked about.
-pub fn pick_view(views: &[([f32; 4], (u32, u32))], border_frac: f64) -> Option<usize> {
-    views
+/// The views to ask, as positions in `views` (`(footprint box, frame size)` each), best
+/// first: the one whose footprint lies farthest inside its frame for its size (the
+/// smallest distance to an edge over the footprint's longer side) has the most room
+/// around the part for the rest of the object. A footprint within `border_frac` of the
+/// width from an edge is cut in that view too, and is not asked about.
+pub fn rank_views(views: &[([f32; 4], (u32, u32))], border_frac: f64) -> Vec<usize> {
+    let mut ranked: Vec<(usize, f32)> = views
         .iter()
         .enumerate()
         .filter_map(|(k, (b, (w, h)))| {
@@ -41,14 +43,30 @@ pub fn pick_view(views: &[([f32; 4], (u32, u32))], border_frac: f64) -> Option<u
             let side = (b[2] - b[0]).max(b[3] - b[1]).max(1.0);
             (margin > border_frac as f32 * w).then_some((k, margin / side))
         })
-        .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
-        .map(|(k, _)| k)
+        .collect();
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    ranked.into_iter().map(|(k, _)| k).collect()
 }
 
-/// Ask for the whole object's box in one view when every view's box is its footprint and
-/// the chosen view saw a part (see the module documentation); the view's box and its
-/// source are replaced when the answer is used. The compute `slot` is let go while the VLM
-/// is asked. Returns what was done, for the
+/// The views that may be asked: those whose box is the footprint, unless some view has a
+/// detection of the class (it holds the whole object there, so the fusion is not capped
+/// by the part). `None` when none may be.
+pub fn footprint_views(view_boxes: &[(usize, [f32; 4], BoxFrom)]) -> Option<Vec<usize>> {
+    if view_boxes.iter().any(|v| v.2 == BoxFrom::Detection) {
+        return None;
+    }
+    let views: Vec<usize> = view_boxes
+        .iter()
+        .filter(|v| v.2 == BoxFrom::Footprint)
+        .map(|v| v.0)
+        .collect();
+    (!views.is_empty()).then_some(views)
+}
+
+/// Ask for the whole object's box in the views whose box is the part's footprint, when the
+/// chosen view saw a part and no view has a detection of the class (see the module
+/// documentation); a view's box and its source are replaced when its answer is used. The
+/// compute `slot` is let go while the VLM is asked. Returns what was done, for the
 /// projection's trace (null when nothing was asked).
 #[allow(clippy::too_many_arguments)]
 pub async fn complete(
@@ -65,28 +83,71 @@ pub async fn complete(
     slot: &mut Option<tokio::sync::SemaphorePermit<'_>>,
 ) -> Result<Value, JobFailure> {
     let cp = &g.params.candidates;
-    if !cp.enabled
-        || !cp.view_box
-        || !anchor_partial
-        || view_boxes.iter().any(|v| v.2 != BoxFrom::Footprint)
-    {
+    if !cp.enabled || !cp.view_box || cp.view_box_views == 0 || !anchor_partial {
         return Ok(Value::Null);
     }
-    // Views (positions in `views`) with a decoded image.
+    let Some(askable) = footprint_views(view_boxes) else {
+        return Ok(Value::Null);
+    };
+    // Views (positions in `views`) whose box is the footprint, with a decoded image.
     let usable: Vec<(usize, &Arc<RgbImage>)> = views
         .iter()
         .enumerate()
+        .filter(|(_, v)| askable.contains(&v.index))
         .filter_map(|(k, v)| decoded.get(&v.index).map(|img| (k, img)))
         .collect();
+    if usable.is_empty() {
+        return Ok(Value::Null);
+    }
     let shapes: Vec<([f32; 4], (u32, u32))> = usable
         .iter()
         .map(|(k, img)| (views[*k].bbox, img.dimensions()))
         .collect();
-    let Some(pos) = pick_view(&shapes, cp.partial.border_frac) else {
+    let ranked = rank_views(&shapes, cp.partial.border_frac);
+    if ranked.is_empty() {
         return Ok(json!({"asked": false, "why": "every view's part touches its frame's edge"}));
-    };
-    let (k, image) = (usable[pos].0, usable[pos].1.clone());
-    let view = &views[k];
+    }
+    let mut asked = Vec::new();
+    for pos in ranked.into_iter().take(cp.view_box_views) {
+        let (k, image) = (usable[pos].0, usable[pos].1.clone());
+        let view = &views[k];
+        let answer = ask_view(
+            g,
+            ctx,
+            budget,
+            log,
+            target_class,
+            anchor_idx,
+            view,
+            image,
+            slot,
+        )
+        .await?;
+        if let Some(b) = answer {
+            if let Some(vb) = view_boxes.iter_mut().find(|v| v.0 == view.index) {
+                vb.1 = b;
+                vb.2 = BoxFrom::VlmBox;
+            }
+        }
+        asked.push(json!({"image_id": format!("{:05}", view.index), "used": answer.is_some()}));
+    }
+    Ok(json!({"asked": true, "views": asked}))
+}
+
+/// One view's request: the frame with the part outlined, the VLM's box of the whole object
+/// there, recorded as a `view_box` step. Returns the box when it holds the part.
+#[allow(clippy::too_many_arguments)]
+async fn ask_view(
+    g: &VlmGrounder,
+    ctx: &JobContext,
+    budget: &CallBudget,
+    log: &mut VlmLog,
+    target_class: &str,
+    anchor_idx: usize,
+    view: &ViewCandidate,
+    image: Arc<RgbImage>,
+    slot: &mut Option<tokio::sync::SemaphorePermit<'_>>,
+) -> Result<Option<[f32; 4]>, JobFailure> {
     let t = Instant::now();
     let format = g.params.box_format;
     let size = image.dimensions();
@@ -169,22 +230,34 @@ pub async fn complete(
             ),
         },
     };
-    step(ctx, "view_box", inputs, outputs.clone(), t).await;
-    if let Some(b) = answer {
-        if let Some(vb) = view_boxes.iter_mut().find(|v| v.0 == view.index) {
-            vb.1 = b;
-            vb.2 = BoxFrom::VlmBox;
-        }
-    }
-    Ok(json!({"asked": true, "image_id": format!("{:05}", view.index), "used": answer.is_some()}))
+    step(ctx, "view_box", inputs, outputs, t).await;
+    Ok(answer)
 }
 
 #[cfg(test)]
 mod tests {
-    use super::pick_view;
+    use super::{footprint_views, rank_views};
+    use crate::agent::ensemble_boxes::BoxFrom;
 
     #[test]
-    fn the_view_with_the_most_room_around_the_part_is_asked() {
+    fn footprint_views_are_asked_unless_a_view_has_a_detection() {
+        let b = [0.0, 0.0, 10.0, 10.0];
+        let mixed = [
+            (3, b, BoxFrom::Footprint),
+            (5, b, BoxFrom::Candidate),
+            (7, b, BoxFrom::Footprint),
+        ];
+        // A candidate may be partial or merged: the footprints beside it are still asked.
+        assert_eq!(footprint_views(&mixed), Some(vec![3, 7]));
+        let mut detected = mixed;
+        detected[1].2 = BoxFrom::Detection;
+        assert_eq!(footprint_views(&detected), None);
+        assert_eq!(footprint_views(&[(5, b, BoxFrom::Candidate)]), None);
+        assert_eq!(footprint_views(&[]), None);
+    }
+
+    #[test]
+    fn views_with_the_most_room_around_the_part_are_asked_first() {
         let size = (640, 480);
         let views = [
             // Touches the top edge: cut there too.
@@ -196,12 +269,15 @@ mod tests {
             // Central but large: 40 px of room for a 400 px part.
             ([120.0, 40.0, 520.0, 440.0], size),
         ];
-        assert_eq!(pick_view(&views, 0.01), Some(2));
-        assert_eq!(pick_view(&views[..2], 0.01), Some(1));
+        assert_eq!(rank_views(&views, 0.01), vec![2, 1, 3]);
+        assert_eq!(rank_views(&views[..2], 0.01), vec![1]);
         // Only parts at the edge: nobody is asked.
-        assert_eq!(pick_view(&views[..1], 0.01), None);
-        assert_eq!(pick_view(&[], 0.01), None);
+        assert!(rank_views(&views[..1], 0.01).is_empty());
+        assert!(rank_views(&[], 0.01).is_empty());
         // A part 5 px from the edge of a 640 px frame is within 1 % of it.
-        assert_eq!(pick_view(&[([5.0, 100.0, 50.0, 150.0], size)], 0.01), None);
+        assert!(rank_views(&[([5.0, 100.0, 50.0, 150.0], size)], 0.01).is_empty());
+        // Equal room: the earlier view first.
+        let twins = [([100.0, 100.0, 140.0, 140.0], size); 2];
+        assert_eq!(rank_views(&twins, 0.01), vec![0, 1]);
     }
 }

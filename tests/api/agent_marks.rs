@@ -187,8 +187,8 @@ async fn without_the_box_fallback_no_mark_means_not_in_this_image() {
 
 /// The chosen view saw a part of the object (its mark runs off the frame's edge) and no
 /// ensemble view has a box of its own for it (`in_views` off: every view's box is its
-/// footprint): the VLM is asked once for the whole object's box in one view, with the part
-/// outlined (`view_box`). A box holding the part replaces that view's footprint; one that
+/// footprint): the VLM is asked for the whole object's box in one view (`view_box_views =
+/// 1`), with the part outlined (`view_box`). A box holding the part replaces that view's footprint; one that
 /// misses the part, or "not in this view", leaves it; with `view_box` off nobody is asked.
 #[tokio::test]
 async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_saw_a_part() {
@@ -204,6 +204,7 @@ async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_sa
             c.agent.candidates.enabled = true;
             c.agent.candidates.in_views = false;
             c.agent.candidates.view_box = on;
+            c.agent.candidates.view_box_views = 1;
         })
         .await;
         // A mark of frame 0 that runs off the frame's left or right edge.
@@ -268,6 +269,106 @@ async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_sa
             assert_eq!(v["box"], v["footprint"], "{v:#}");
         }
         assert_trace_clean(&job);
+    }
+}
+
+/// With `view_box_views` above 1, each view left with the footprint is asked in turn (at
+/// most that many, no view twice, only views whose part does not come within 1 % of the
+/// frame's edge), and every answer that holds the part replaces that view's footprint.
+/// The shared scene's chosen frame is the first whose mark at the edge leaves two views to
+/// ask.
+#[tokio::test]
+async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
+    let (w, h) = grounder::synth::SynthParams::small(SEED).color_size;
+    let whole = serde_json::json!({"reasoning": "the whole board", "bbox_2d": [0.0, 0.0, w as f32, h as f32]});
+    // A footprint that may be asked: farther than 1 % of the width from every edge.
+    let room = (0.01 * f64::from(w)).ceil();
+    let askable = |v: &serde_json::Value| {
+        let b: Vec<f64> = v["footprint"]
+            .as_array()
+            .map(|a| a.iter().filter_map(serde_json::Value::as_f64).collect())
+            .unwrap_or_default();
+        b.len() == 4
+            && b[0]
+                .min(b[1])
+                .min(f64::from(w) - b[2])
+                .min(f64::from(h) - b[3])
+                > room
+    };
+    for most in [1usize, 2] {
+        let f = Fixture::start_with_config(5_000, "centernet", |c| {
+            c.agent.candidates.enabled = true;
+            c.agent.candidates.in_views = false;
+            c.agent.candidates.view_box_views = most;
+        })
+        .await;
+        let mut found = false;
+        'frames: for frame in 0..8usize {
+            let cands = f
+                .store
+                .frame_candidates(&f.scene_id, frame)
+                .await
+                .unwrap()
+                .unwrap_or_default();
+            for (cut, _) in cands
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.bbox[0] <= 0.0 || c.bbox[2] >= w as f32)
+            {
+                let before = f.vlm.requests().len();
+                let mut script = vec![
+                    analysis("whiteboard"),
+                    pick_image(format!("{frame:05}")),
+                    pick_object(cut as u32),
+                ];
+                script.extend((0..most).map(|_| Reply::ok(whole.to_string())));
+                f.vlm.script_push(script);
+                let job = f.run_job(QUERY).await;
+                while f.vlm.remaining() > 0 {
+                    f.vlm.script_pop();
+                }
+                if job["status"] != "succeeded" {
+                    continue;
+                }
+                let proj = &steps(&job, "projection")[0]["outputs"];
+                let views = proj["views"].as_array().cloned().unwrap_or_default();
+                let n_askable = views.iter().filter(|v| askable(v)).count();
+                if proj["anchor_partial"]["partial"] != true || n_askable < 2 {
+                    continue;
+                }
+                let asked = steps(&job, "view_box");
+                let ids: Vec<String> = asked
+                    .iter()
+                    .map(|s| {
+                        s["inputs"]["image_id"]
+                            .as_str()
+                            .unwrap_or_default()
+                            .to_string()
+                    })
+                    .collect();
+                assert_eq!(ids.len(), most, "{ids:?} {proj:#}");
+                let unique: std::collections::BTreeSet<&String> = ids.iter().collect();
+                assert_eq!(unique.len(), ids.len(), "no view asked twice: {ids:?}");
+                assert_eq!(f.vlm.requests().len() - before, 3 + most);
+                let listed: Vec<&str> = proj["view_box"]["views"]
+                    .as_array()
+                    .map(|a| a.iter().filter_map(|v| v["image_id"].as_str()).collect())
+                    .unwrap_or_default();
+                assert_eq!(listed, ids, "{proj:#}");
+                for v in &views {
+                    let was_asked = ids.iter().any(|id| v["image_id"] == id.as_str());
+                    let want = if was_asked { "vlm_box" } else { "footprint" };
+                    assert_eq!(v["box_from"], want, "{v:#}");
+                    if was_asked {
+                        assert!(askable(v), "a view at the edge was asked: {v:#}");
+                    }
+                }
+                assert_trace_clean(&job);
+                found = true;
+                break 'frames;
+            }
+        }
+        assert!(found, "no frame's mark at the edge left two views to ask");
     }
 }
 

@@ -109,10 +109,13 @@ pub struct CandidateParams {
     /// class-agnostic region can hold the object together with what it stands on.
     pub in_views_partial_only: bool,
     /// When the chosen view saw a part of the object and no ensemble view has a detection
-    /// of the class or a candidate holding it, ask the VLM for the whole object's box in
-    /// the view most likely to show all of it (one more call; the part is outlined for
-    /// it). The answer must hold at least half the reprojected part, as a detection must.
+    /// of the class, ask the VLM for the whole object's box in the views whose box is
+    /// still the part's footprint, most room around the part first (one call each; the
+    /// part is outlined for it). An answer must hold at least half the reprojected part,
+    /// as a detection must.
     pub view_box: bool,
+    /// ...in at most this many views (0: none).
+    pub view_box_views: usize,
     /// When the box from the marks or the VLM lies where under `unmeasured_fraction` of
     /// its depth pixels hold a reading (too far for the sensor; the room's box counts for
     /// objects flat against a wall), tell the VLM so, once per job, and let it choose
@@ -164,6 +167,7 @@ impl Default for CandidateParams {
             in_views: true,
             in_views_partial_only: true,
             view_box: true,
+            view_box_views: 3,
             unmeasured_retry: true,
             unmeasured_fraction: 0.05,
             nearer_frames: true,
