@@ -164,6 +164,28 @@ impl TestApp {
         }
     }
 
+    /// Poll a scene until its status is `until`: `Ok` with the scene's document then, `Err`
+    /// with the last document seen when it settled on another status (anything but
+    /// `indexing`) or the timeout passed first.
+    pub async fn wait_scene(
+        &self,
+        id: &str,
+        until: &str,
+        timeout: Duration,
+    ) -> Result<serde_json::Value, serde_json::Value> {
+        let start = std::time::Instant::now();
+        loop {
+            let (_, s) = self.get_json(&format!("/v1/scenes/{id}")).await;
+            if s["status"] == until {
+                return Ok(s);
+            }
+            if s["status"] != "indexing" || start.elapsed() > timeout {
+                return Err(s);
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
     /// Stop the server gracefully and wait for it.
     pub async fn stop(mut self) -> Option<tempfile::TempDir> {
         if let Some(tx) = self.stop.take() {

@@ -6,6 +6,8 @@ use crate::helpers::*;
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
+/// Poll the scene until `until` holds of it: here its indexing progress, which
+/// `TestApp::wait_scene` (a status) does not express.
 async fn wait_index(app: &TestApp, id: &str, until: impl Fn(&Value) -> bool) -> Value {
     let t = Instant::now();
     loop {
@@ -66,7 +68,11 @@ async fn a_stop_during_indexing_frees_the_scene_for_the_next_start() {
 
     // The next start indexes it to the end.
     let app = TestApp::spawn_with(cfg).await;
-    let s = wait_index(&app, &id, |s| s["status"] != "indexing").await;
+    // Stuck or failed, assert_indexed reports the scene as it was last seen.
+    let s = app
+        .wait_scene(&id, "ready", Duration::from_secs(30))
+        .await
+        .unwrap_or_else(|s| s);
     let unusable = s["unusable_frames"].as_array().map_or(0, Vec::len) as i64;
     let usable = 12 - unusable;
     assert_indexed(&s, usable);
