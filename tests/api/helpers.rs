@@ -331,6 +331,22 @@ pub fn files_under(dir: &std::path::Path) -> Vec<PathBuf> {
     out
 }
 
+/// Every file below the folder `dir` (which must exist) with its size, sorted: what a
+/// test compares before and after to see that nothing was written there. Half-written
+/// (`*.tmp`) and dot files count too; a file gone between listing and sizing is left out.
+pub fn files_and_sizes(dir: &std::path::Path) -> Vec<(PathBuf, u64)> {
+    assert!(dir.is_dir(), "no folder {}", dir.display());
+    let mut v: Vec<_> = files_under(dir)
+        .into_iter()
+        .filter_map(|p| {
+            let n = std::fs::metadata(&p).ok()?.len();
+            Some((p, n))
+        })
+        .collect();
+    v.sort();
+    v
+}
+
 /// Pack files as a tar under an optional top-level folder.
 pub fn tar_of(files: &[(String, Vec<u8>)], top: Option<&str>) -> Vec<u8> {
     let mut b = tar::Builder::new(Vec::new());

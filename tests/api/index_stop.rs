@@ -20,12 +20,6 @@ async fn wait_index(app: &TestApp, id: &str, until: impl Fn(&Value) -> bool) -> 
     }
 }
 
-fn names(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut v = files_under(dir);
-    v.sort();
-    v
-}
-
 #[tokio::test]
 async fn a_stop_during_indexing_frees_the_scene_for_the_next_start() {
     let dir = tempfile::tempdir().unwrap();
@@ -47,10 +41,10 @@ async fn a_stop_during_indexing_frees_the_scene_for_the_next_start() {
     app.stop().await;
 
     let scene_dir = data_dir.join("scenes").join(&id);
-    let before = names(&scene_dir);
+    let before = files_and_sizes(&scene_dir);
     tokio::time::sleep(Duration::from_millis(700)).await;
     assert_eq!(
-        names(&scene_dir),
+        files_and_sizes(&scene_dir),
         before,
         "indexing went on writing after the service stopped"
     );
