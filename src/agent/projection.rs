@@ -393,12 +393,15 @@ pub async fn run(
     // The chosen box, when drawn on the image (not a candidate's), and the room's floor.
     let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
     let sp = &g.params.geometry.support;
-    let floor = match &walls {
-        _ if !(down && sp.enabled && sp.floor_reach && g.params.geometry.layout.enabled) => None,
-        Some(room) => room.floor,
-        None => scene_room(ctx, g.params.geometry.layout.clone())
-            .await?
-            .and_then(|r| r.floor),
+    let floor = if down && sp.enabled && sp.floor_reach && g.params.geometry.layout.enabled {
+        match &walls {
+            Some(room) => room.floor,
+            None => scene_room(ctx, g.params.geometry.layout.clone())
+                .await?
+                .and_then(|r| r.floor),
+        }
+    } else {
+        None
     };
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {

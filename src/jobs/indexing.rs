@@ -220,19 +220,16 @@ impl Indexer {
             }
         };
         drop(keeper);
-        let outcome = match outcome {
-            Ok(Indexed::Stopped) => {
-                self.release(&scene_id, &owner, true).await;
-                return;
-            }
-            Ok(Indexed::Done) => Ok(()),
-            Err(e) => Err(e),
-        };
+        if let Ok(Indexed::Stopped) = &outcome {
+            self.release(&scene_id, &owner, true).await;
+            return;
+        }
         if outcome.is_ok() {
             jobs.warm_scene_points(&scene_id);
         }
         let (status, err) = match outcome {
-            Ok(()) => ("ready", None),
+            // Done: Stopped returned above.
+            Ok(_) => ("ready", None),
             Err(e) => {
                 // The log keeps the full reason; the scene (and its jobs) name files only.
                 tracing::warn!(scene = %scene_id, "indexing failed: {e:#}");

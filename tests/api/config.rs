@@ -5,7 +5,7 @@ use crate::helpers::{test_config, TestApp};
 use grounder::config::load::{resolve, Flags, Sources};
 use grounder::store::Store;
 use std::process::{Command, Output};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const BIN: &str = env!("CARGO_BIN_EXE_grounder");
 
@@ -102,14 +102,8 @@ async fn candidates_after_upload(vars: &[(&str, &str)]) -> usize {
     assert_eq!(r.status().as_u16(), 201);
     let v: serde_json::Value = r.json().await.unwrap();
     let id = v["id"].as_str().unwrap().to_string();
-    let t = Instant::now();
-    loop {
-        let (_, s) = app.get_json(&format!("/v1/scenes/{id}")).await;
-        if s["status"] == "ready" {
-            break;
-        }
-        assert!(t.elapsed() < Duration::from_secs(60), "not indexed: {s}");
-        tokio::time::sleep(Duration::from_millis(50)).await;
+    if let Err(s) = app.wait_scene(&id, "ready", Duration::from_secs(60)).await {
+        panic!("not indexed: {s}");
     }
     let store = Store::open(dir.path()).await.unwrap();
     let cands = store

@@ -48,21 +48,6 @@ async fn post(app: &TestApp, query: &str, body: Vec<u8>, ct: &str) -> (u16, Valu
     (s, r.json().await.unwrap_or(Value::Null), ct)
 }
 
-async fn wait_ready(app: &TestApp, id: &str) -> Value {
-    let start = std::time::Instant::now();
-    loop {
-        let (_, s) = app.get_json(&format!("/v1/scenes/{id}")).await;
-        if s["status"] != "indexing" {
-            return s;
-        }
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "never indexed: {s}"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
-
 async fn ground(app: &TestApp, id: &str, query: &str) -> [f64; 6] {
     let job = app.submit_job(id, query).await;
     let j = app.wait_job(&job, Duration::from_secs(120)).await;
@@ -83,7 +68,12 @@ async fn ground(app: &TestApp, id: &str, query: &str) -> [f64; 6] {
 async fn import(app: &TestApp, query: &str, body: Vec<u8>, ct: &str) -> Value {
     let (s, rec, _) = post(app, query, body, ct).await;
     assert_eq!(s, 201, "{rec}");
-    wait_ready(app, rec["id"].as_str().unwrap()).await
+    let id = rec["id"].as_str().unwrap();
+    match app.wait_scene(id, "ready", Duration::from_secs(60)).await {
+        Ok(s) => s,
+        Err(s) if s["status"] == "indexing" => panic!("never indexed: {s}"),
+        Err(s) => s,
+    }
 }
 
 #[tokio::test]

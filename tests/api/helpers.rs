@@ -164,6 +164,28 @@ impl TestApp {
         }
     }
 
+    /// Poll a scene until its status is `until`: `Ok` with the scene's document then, `Err`
+    /// with the last document seen when it settled on another status (anything but
+    /// `indexing`) or the timeout passed first.
+    pub async fn wait_scene(
+        &self,
+        id: &str,
+        until: &str,
+        timeout: Duration,
+    ) -> Result<serde_json::Value, serde_json::Value> {
+        let start = std::time::Instant::now();
+        loop {
+            let (_, s) = self.get_json(&format!("/v1/scenes/{id}")).await;
+            if s["status"] == until {
+                return Ok(s);
+            }
+            if s["status"] != "indexing" || start.elapsed() > timeout {
+                return Err(s);
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
     /// Stop the server gracefully and wait for it.
     pub async fn stop(mut self) -> Option<tempfile::TempDir> {
         if let Some(tx) = self.stop.take() {
@@ -307,6 +329,22 @@ pub fn files_under(dir: &std::path::Path) -> Vec<PathBuf> {
         }
     }
     out
+}
+
+/// Every file below the folder `dir` (which must exist) with its size, sorted: what a
+/// test compares before and after to see that nothing was written there. Half-written
+/// (`*.tmp`) and dot files count too; a file gone between listing and sizing is left out.
+pub fn files_and_sizes(dir: &std::path::Path) -> Vec<(PathBuf, u64)> {
+    assert!(dir.is_dir(), "no folder {}", dir.display());
+    let mut v: Vec<_> = files_under(dir)
+        .into_iter()
+        .filter_map(|p| {
+            let n = std::fs::metadata(&p).ok()?.len();
+            Some((p, n))
+        })
+        .collect();
+    v.sort();
+    v
 }
 
 /// Pack files as a tar under an optional top-level folder.

@@ -6,6 +6,8 @@ use crate::helpers::*;
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
+/// Poll the scene until `until` holds of it: here its indexing progress, which
+/// `TestApp::wait_scene` (a status) does not express.
 async fn wait_index(app: &TestApp, id: &str, until: impl Fn(&Value) -> bool) -> Value {
     let t = Instant::now();
     loop {
@@ -16,12 +18,6 @@ async fn wait_index(app: &TestApp, id: &str, until: impl Fn(&Value) -> bool) -> 
         assert!(t.elapsed() < Duration::from_secs(30), "scene stuck: {s}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-}
-
-fn names(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut v = files_under(dir);
-    v.sort();
-    v
 }
 
 #[tokio::test]
@@ -45,10 +41,10 @@ async fn a_stop_during_indexing_frees_the_scene_for_the_next_start() {
     app.stop().await;
 
     let scene_dir = data_dir.join("scenes").join(&id);
-    let before = names(&scene_dir);
+    let before = files_and_sizes(&scene_dir);
     tokio::time::sleep(Duration::from_millis(700)).await;
     assert_eq!(
-        names(&scene_dir),
+        files_and_sizes(&scene_dir),
         before,
         "indexing went on writing after the service stopped"
     );
@@ -66,7 +62,11 @@ async fn a_stop_during_indexing_frees_the_scene_for_the_next_start() {
 
     // The next start indexes it to the end.
     let app = TestApp::spawn_with(cfg).await;
-    let s = wait_index(&app, &id, |s| s["status"] != "indexing").await;
+    // Stuck or failed, assert_indexed reports the scene as it was last seen.
+    let s = app
+        .wait_scene(&id, "ready", Duration::from_secs(30))
+        .await
+        .unwrap_or_else(|s| s);
     let unusable = s["unusable_frames"].as_array().map_or(0, Vec::len) as i64;
     let usable = 12 - unusable;
     assert_indexed(&s, usable);

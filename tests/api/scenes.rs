@@ -304,14 +304,14 @@ async fn scenes_are_indexed_and_can_be_reindexed() {
     assert_eq!(j["status"], "indexing");
     let usable = scene.frames.iter().filter(|f| f.pose_valid).count() as i64;
     let wait_ready = || async {
-        for _ in 0..400 {
-            let (_, s) = app.get_json(&format!("/v1/scenes/{id}")).await;
-            if s["status"] != "indexing" {
-                return s;
-            }
-            tokio::time::sleep(std::time::Duration::from_millis(25)).await;
+        match app
+            .wait_scene(&id, "ready", std::time::Duration::from_secs(10))
+            .await
+        {
+            Ok(s) => s,
+            Err(s) if s["status"] == "indexing" => panic!("indexing did not finish: {s}"),
+            Err(s) => s,
         }
-        panic!("indexing did not finish");
     };
     let s = wait_ready().await;
     assert_indexed(&s, usable);

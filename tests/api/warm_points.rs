@@ -109,14 +109,12 @@ async fn a_stopping_service_ends_its_warming_and_writes_nothing_after() {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let scene_b = app.data_dir.join("scenes").join(&b);
     let data_dir = app.data_dir.clone();
-    let mut before = grounder::storage::local_files(&scene_b).unwrap();
-    before.sort();
+    let before = files_and_sizes(&scene_b);
     app.stop().await;
 
     // Once stop returned, nothing more is written into the scene's folder.
     tokio::time::sleep(Duration::from_millis(1500)).await;
-    let mut after = grounder::storage::local_files(&scene_b).unwrap();
-    after.sort();
+    let after = files_and_sizes(&scene_b);
     assert_eq!(before, after, "files changed after the service stopped");
     assert!(!points_file_in(&data_dir, &b).exists());
 }
