@@ -57,6 +57,15 @@ pub fn vlm_config(base: &str, timeout_ms: u64) -> VlmConfig {
 }
 
 impl Fixture {
+    /// The cached class-agnostic candidates of frame `idx` (none when it has none).
+    pub async fn candidates(&self, idx: usize) -> Vec<Detection> {
+        self.store
+            .frame_candidates(&self.scene_id, idx)
+            .await
+            .unwrap()
+            .unwrap_or_default()
+    }
+
     pub async fn start(replies: Vec<Reply>, timeout_ms: u64) -> Fixture {
         Self::start_with_detector(replies, timeout_ms, "oracle").await
     }

@@ -86,12 +86,7 @@ async fn ensemble_views_take_the_candidate_that_holds_the_object() {
         }
         for v in &views {
             let idx: usize = v["image_id"].as_str().unwrap().parse().unwrap();
-            let cands = f
-                .store
-                .frame_candidates(&f.scene_id, idx)
-                .await
-                .unwrap()
-                .unwrap_or_default();
+            let cands = f.candidates(idx).await;
             if v["box_from"] == "candidate" {
                 from_candidates += 1;
                 let b: Vec<f32> = serde_json::from_value(v["box"].clone()).unwrap();
@@ -208,12 +203,7 @@ async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_sa
         })
         .await;
         // A mark of frame 0 that runs off the frame's left or right edge.
-        let cands = f
-            .store
-            .frame_candidates(&f.scene_id, 0)
-            .await
-            .unwrap()
-            .unwrap_or_default();
+        let cands = f.candidates(0).await;
         let cut = cands
             .iter()
             .position(|c| c.bbox[0] <= 0.0 || c.bbox[2] >= w as f32)
@@ -304,12 +294,7 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
         .await;
         let mut found = false;
         'frames: for frame in 0..8usize {
-            let cands = f
-                .store
-                .frame_candidates(&f.scene_id, frame)
-                .await
-                .unwrap()
-                .unwrap_or_default();
+            let cands = f.candidates(frame).await;
             for (cut, _) in cands
                 .iter()
                 .enumerate()
