@@ -9,7 +9,7 @@
 //! whole object's box there. An answer is used as a detection would be: only when it holds
 //! at least half the reprojected pixels ([`super::ensemble_boxes::pick_detection`]). It
 //! never fails the job: a refusal, an unusable box or a failed call keeps the view's
-//! footprint.
+//! footprint. Asking stops when the job's VLM call budget is spent.
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -109,6 +109,10 @@ pub async fn complete(
     }
     let mut asked = Vec::new();
     for pos in ranked.into_iter().take(cp.view_box_views) {
+        // A call past the job's budget would only be refused: what is left stays footprint.
+        if budget.calls_used() >= budget.max_calls() {
+            return Ok(json!({"asked": !asked.is_empty(), "views": asked, "stopped": "the job's VLM call budget is spent"}));
+        }
         let (k, image) = (usable[pos].0, usable[pos].1.clone());
         let view = &views[k];
         let answer = ask_view(

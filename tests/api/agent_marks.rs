@@ -285,11 +285,15 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
                 .min(f64::from(h) - b[3])
                 > room
     };
-    for most in [1usize, 2] {
+    // (views that may be asked, the job's VLM call budget): the third run's budget covers
+    // the three calls before the projection and one view, so asking stops after one.
+    for (most, calls) in [(1usize, 16u32), (2, 16), (2, 4)] {
+        let asks = most.min(calls as usize - 3);
         let f = Fixture::start_with_config(5_000, "centernet", |c| {
             c.agent.candidates.enabled = true;
             c.agent.candidates.in_views = false;
             c.agent.candidates.view_box_views = most;
+            c.agent.max_vlm_calls = calls;
         })
         .await;
         let mut found = false;
@@ -306,7 +310,7 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
                     pick_image(format!("{frame:05}")),
                     pick_object(cut as u32),
                 ];
-                script.extend((0..most).map(|_| Reply::ok(whole.to_string())));
+                script.extend((0..asks).map(|_| Reply::ok(whole.to_string())));
                 f.vlm.script_push(script);
                 let job = f.run_job(QUERY).await;
                 while f.vlm.remaining() > 0 {
@@ -331,10 +335,12 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
                             .to_string()
                     })
                     .collect();
-                assert_eq!(ids.len(), most, "{ids:?} {proj:#}");
+                assert_eq!(ids.len(), asks, "{ids:?} {proj:#}");
                 let unique: std::collections::BTreeSet<&String> = ids.iter().collect();
                 assert_eq!(unique.len(), ids.len(), "no view asked twice: {ids:?}");
-                assert_eq!(f.vlm.requests().len() - before, 3 + most);
+                assert_eq!(f.vlm.requests().len() - before, 3 + asks);
+                let stopped = proj["view_box"]["stopped"].as_str().unwrap_or_default();
+                assert_eq!(stopped.contains("budget"), asks < most, "{proj:#}");
                 let listed: Vec<&str> = proj["view_box"]["views"]
                     .as_array()
                     .map(|a| a.iter().filter_map(|v| v["image_id"].as_str()).collect())
