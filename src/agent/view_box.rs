@@ -111,7 +111,9 @@ pub async fn complete(
     for pos in ranked.into_iter().take(cp.view_box_views) {
         // A call past the job's budget would only be refused: what is left stays footprint.
         if budget.calls_used() >= budget.max_calls() {
-            return Ok(json!({"asked": !asked.is_empty(), "views": asked, "stopped": "the job's VLM call budget is spent"}));
+            return Ok(
+                json!({"asked": !asked.is_empty(), "views": asked, "stopped": "the job's VLM call budget is spent"}),
+            );
         }
         let (k, image) = (usable[pos].0, usable[pos].1.clone());
         let view = &views[k];
