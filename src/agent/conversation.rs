@@ -15,7 +15,7 @@ pub struct Conversation<'a> {
     pub image_urls: Vec<String>,
     /// Messages already written to the trace.
     pub logged: usize,
-    pub log: &'a mut VlmLog,
+    pub log: &'a VlmLog,
     pub rounds: usize,
     /// Indices in `messages` of the feedback turns.
     pub feedback_at: Vec<usize>,

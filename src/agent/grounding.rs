@@ -189,7 +189,7 @@ pub async fn run(
     g: &VlmGrounder,
     ctx: &JobContext,
     budget: &CallBudget,
-    log: &mut VlmLog,
+    log: &VlmLog,
     analysis: &QueryAnalysis,
     pre: &Preselection,
     grids: &Grids,

@@ -220,8 +220,8 @@ impl VlmGrounder {
             Some(Duration::from_secs(self.params.max_job_seconds)),
             ctx.cancel.clone(),
         );
-        let mut log = vlm_log::VlmLog::default();
-        match self.stages(&ctx, &budget, &mut log, started).await {
+        let log = vlm_log::VlmLog::default();
+        match self.stages(&ctx, &budget, &log, started).await {
             Ok(out) => Ok(out),
             Err(e) => {
                 log.record_failure(&ctx, &e, &budget).await;
@@ -234,7 +234,7 @@ impl VlmGrounder {
         &self,
         ctx: &JobContext,
         budget: &CallBudget,
-        log: &mut vlm_log::VlmLog,
+        log: &vlm_log::VlmLog,
         started: Instant,
     ) -> Result<GroundingOutput, JobFailure> {
         let analysis = query_analysis::run(self, ctx, budget, log).await?;
@@ -293,8 +293,8 @@ impl VlmGrounder {
         let usage = budget.total_usage();
         let summary = json!({
             "total_ms": total_ms,
-            "vlm_ms": log.vlm_ms,
-            "non_vlm_ms": (total_ms - log.vlm_ms).max(0.0),
+            "vlm_ms": log.vlm_ms(),
+            "non_vlm_ms": (total_ms - log.vlm_ms()).max(0.0),
             "vlm_calls": budget.calls_used(),
             "tokens": {"prompt": usage.prompt, "completion": usage.completion, "total": usage.total},
             "feedback_rounds": choice.feedback_rounds,

@@ -251,7 +251,7 @@ pub async fn run(
     g: &VlmGrounder,
     ctx: &JobContext,
     budget: &CallBudget,
-    log: &mut VlmLog,
+    log: &VlmLog,
     target_class: &str,
     pre: &Preselection,
     choice: &Choice,
@@ -357,13 +357,16 @@ pub async fn run(
     let decode_ms = ms(td);
     let views_decoded = decoded.len();
     let (anchor_idx, partial) = (choice.frame_idx, anchor_partial.partial);
-    let view_box = super::view_box::complete(
+    let asker = super::view_box::Asker {
         g,
         ctx,
         budget,
         log,
         target_class,
         anchor_idx,
+    };
+    let view_box = super::view_box::complete(
+        &asker,
         partial,
         &views,
         &mut view_boxes,

@@ -37,7 +37,7 @@ pub async fn run(
     g: &VlmGrounder,
     ctx: &JobContext,
     budget: &CallBudget,
-    log: &mut VlmLog,
+    log: &VlmLog,
 ) -> Result<QueryAnalysis, JobFailure> {
     let t = Instant::now();
     let key = normalise(&ctx.query);

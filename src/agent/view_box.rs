@@ -9,7 +9,8 @@
 //! whole object's box there. An answer is used as a detection would be: only when it holds
 //! at least half the reprojected pixels ([`super::ensemble_boxes::pick_detection`]). It
 //! never fails the job: a refusal, an unusable box or a failed call keeps the view's
-//! footprint. Asking stops when the job's VLM call budget is spent.
+//! footprint. The views are asked at the same time, no more of them than the job's VLM
+//! call budget has calls left.
 
 use image::RgbImage;
 use serde_json::{json, Value};
@@ -20,7 +21,7 @@ use std::time::Instant;
 use super::conversation::Conversation;
 use super::ensemble_boxes::{pick_detection, BoxFrom};
 use super::vlm_log::VlmLog;
-use super::{step, VlmGrounder};
+use super::VlmGrounder;
 use crate::geometry::ensemble::ViewCandidate;
 use crate::jobs::{JobContext, JobFailure};
 use crate::stitch::label::{stroke_rect, PixelRect};
@@ -63,26 +64,39 @@ pub fn footprint_views(view_boxes: &[(usize, [f32; 4], BoxFrom)]) -> Option<Vec<
     (!views.is_empty()).then_some(views)
 }
 
+/// What every `view_box` request of a job shares.
+pub struct Asker<'a> {
+    pub g: &'a VlmGrounder,
+    pub ctx: &'a JobContext,
+    pub budget: &'a CallBudget,
+    pub log: &'a VlmLog,
+    pub target_class: &'a str,
+    /// The chosen frame, where the part was seen.
+    pub anchor_idx: usize,
+}
+
+/// A view made ready to ask: the frame with the part outlined, stored as an artifact.
+struct Prepared<'v> {
+    view: &'v ViewCandidate,
+    size: (u32, u32),
+    jpeg: Vec<u8>,
+    url: String,
+}
+
 /// Ask for the whole object's box in the views whose box is the part's footprint, when the
 /// chosen view saw a part and no view has a detection of the class (see the module
 /// documentation); a view's box and its source are replaced when its answer is used. The
-/// compute `slot` is let go while the VLM is asked. Returns what was done, for the
-/// projection's trace (null when nothing was asked).
-#[allow(clippy::too_many_arguments)]
+/// views are asked at the same time, and the compute `slot` is let go meanwhile. Returns
+/// what was done, for the projection's trace (null when nothing was asked).
 pub async fn complete(
-    g: &VlmGrounder,
-    ctx: &JobContext,
-    budget: &CallBudget,
-    log: &mut VlmLog,
-    target_class: &str,
-    anchor_idx: usize,
+    a: &Asker<'_>,
     anchor_partial: bool,
     views: &[ViewCandidate],
     view_boxes: &mut [(usize, [f32; 4], BoxFrom)],
     decoded: &HashMap<usize, Arc<RgbImage>>,
     slot: &mut Option<tokio::sync::SemaphorePermit<'_>>,
 ) -> Result<Value, JobFailure> {
-    let cp = &g.params.candidates;
+    let cp = &a.g.params.candidates;
     if !cp.enabled || !cp.view_box || cp.view_box_views == 0 || !anchor_partial {
         return Ok(Value::Null);
     }
@@ -107,58 +121,47 @@ pub async fn complete(
     if ranked.is_empty() {
         return Ok(json!({"asked": false, "why": "every view's part touches its frame's edge"}));
     }
+    let wanted = ranked.len().min(cp.view_box_views);
+    // A call past the job's budget would only be refused: the views beyond it keep their
+    // footprint.
+    let n = wanted.min(usize::try_from(a.budget.calls_left()).unwrap_or(usize::MAX));
+    let mut prepared = Vec::with_capacity(n);
+    for &pos in &ranked[..n] {
+        let (k, image) = usable[pos];
+        prepared.push(prepare(a, &views[k], image.clone()).await?);
+    }
+    // Other jobs may compute while this one waits for the VLM (the caller takes a slot
+    // again before it goes on).
+    slot.take();
+    let answers = futures::future::join_all(prepared.iter().map(|p| ask_view(a, p))).await;
     let mut asked = Vec::new();
-    for pos in ranked.into_iter().take(cp.view_box_views) {
-        // A call past the job's budget would only be refused: what is left stays footprint.
-        if budget.calls_used() >= budget.max_calls() {
-            return Ok(
-                json!({"asked": !asked.is_empty(), "views": asked, "stopped": "the job's VLM call budget is spent"}),
-            );
-        }
-        let (k, image) = (usable[pos].0, usable[pos].1.clone());
-        let view = &views[k];
-        let answer = ask_view(
-            g,
-            ctx,
-            budget,
-            log,
-            target_class,
-            anchor_idx,
-            view,
-            image,
-            slot,
-        )
-        .await?;
+    for (p, answer) in prepared.iter().zip(answers) {
+        let (record, answer) = answer?;
+        a.ctx.trace.step("view_box", record).await;
         if let Some(b) = answer {
-            if let Some(vb) = view_boxes.iter_mut().find(|v| v.0 == view.index) {
+            if let Some(vb) = view_boxes.iter_mut().find(|v| v.0 == p.view.index) {
                 vb.1 = b;
                 vb.2 = BoxFrom::VlmBox;
             }
         }
-        asked.push(json!({"image_id": format!("{:05}", view.index), "used": answer.is_some()}));
+        asked.push(json!({"image_id": format!("{:05}", p.view.index), "used": answer.is_some()}));
     }
-    Ok(json!({"asked": true, "views": asked}))
+    let mut out = json!({"asked": !asked.is_empty(), "views": asked});
+    if n < wanted {
+        out["stopped"] = json!("the job's VLM call budget is spent");
+    }
+    Ok(out)
 }
 
-/// One view's request: the frame with the part outlined, the VLM's box of the whole object
-/// there, recorded as a `view_box` step. Returns the box when it holds the part.
-#[allow(clippy::too_many_arguments)]
-async fn ask_view(
-    g: &VlmGrounder,
-    ctx: &JobContext,
-    budget: &CallBudget,
-    log: &mut VlmLog,
-    target_class: &str,
-    anchor_idx: usize,
-    view: &ViewCandidate,
+/// The frame with the part outlined in red, encoded and stored as the request's artifact.
+async fn prepare<'v>(
+    a: &Asker<'_>,
+    view: &'v ViewCandidate,
     image: Arc<RgbImage>,
-    slot: &mut Option<tokio::sync::SemaphorePermit<'_>>,
-) -> Result<Option<[f32; 4]>, JobFailure> {
-    let t = Instant::now();
-    let format = g.params.box_format;
+) -> Result<Prepared<'v>, JobFailure> {
     let size = image.dimensions();
     let part = view.bbox;
-    let quality = g.params.stitch.jpeg_quality;
+    let quality = a.g.params.stitch.jpeg_quality;
     let jpeg = tokio::task::spawn_blocking(move || {
         let mut img = (*image).clone();
         let thickness = ((img.height() as f32 * 0.004).round() as u32).max(2);
@@ -174,38 +177,56 @@ async fn ask_view(
     .await
     .map_err(|e| JobFailure::new("internal", format!("encoding task failed: {e}")))?
     .map_err(|e| JobFailure::new("annotation_failed", format!("{e:#}")))?;
-    let url = ctx
+    let url = a
+        .ctx
         .trace
         .artifact(&format!("view_box_{:05}.jpg", view.index), jpeg.clone())
         .await?;
-    let text = g.prompts.view_box_request(
-        &ctx.query,
-        target_class,
-        view.index as u32,
-        anchor_idx as u32,
+    Ok(Prepared {
+        view,
         size,
+        jpeg,
+        url,
+    })
+}
+
+/// One view's request: the VLM's box of the whole object there. Returns the `view_box`
+/// step's record and the box when it holds the part; fails only when the job is canceled.
+async fn ask_view(
+    a: &Asker<'_>,
+    p: &Prepared<'_>,
+) -> Result<(Value, Option<[f32; 4]>), JobFailure> {
+    let t = Instant::now();
+    let (g, view, part) = (a.g, p.view, p.view.bbox);
+    let format = g.params.box_format;
+    let text = g.prompts.view_box_request(
+        &a.ctx.query,
+        a.target_class,
+        view.index as u32,
+        a.anchor_idx as u32,
+        p.size,
         part,
         format,
     );
-    let inputs = json!({"image_id": format!("{:05}", view.index), "anchor_image_id": format!("{anchor_idx:05}"), "part_box": part, "box_format": format.name(), "image": url});
+    let inputs = json!({"image_id": format!("{:05}", view.index), "anchor_image_id": format!("{:05}", a.anchor_idx), "part_box": part, "box_format": format.name(), "image": p.url});
     let mut conv = Conversation {
-        messages: vec![Message::user_with_images(text, vec![ImageData::jpeg(jpeg)])],
-        image_urls: vec![url],
+        messages: vec![Message::user_with_images(
+            text,
+            vec![ImageData::jpeg(p.jpeg.clone())],
+        )],
+        image_urls: vec![p.url.clone()],
         logged: 0,
-        log,
+        log: a.log,
         rounds: 0,
         feedback_at: Vec::new(),
     };
-    // Other jobs may compute while this one waits for the VLM (the caller takes a slot
-    // again before it goes on).
-    slot.take();
-    let (outputs, answer) = match conv.ask(g, budget, VlmStep::Box).await {
+    let (outputs, answer) = match conv.ask(g, a.budget, VlmStep::Box).await {
         Err(e) if e.code == "canceled" => return Err(e),
         Err(e) => (
             json!({"box": null, "used": false, "why": format!("the call failed: {}", e.detail)}),
             None,
         ),
-        Ok((reply, rec)) => match parse_box(&reply, format, size) {
+        Ok((reply, rec)) => match parse_box(&reply, format, p.size) {
             Ok(BoxAnswer {
                 bbox: Some(b),
                 raw,
@@ -236,8 +257,10 @@ async fn ask_view(
             ),
         },
     };
-    step(ctx, "view_box", inputs, outputs, t).await;
-    Ok(answer)
+    Ok((
+        json!({"inputs": inputs, "outputs": outputs, "ms": super::ms(t)}),
+        answer,
+    ))
 }
 
 #[cfg(test)]

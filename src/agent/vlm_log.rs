@@ -5,17 +5,57 @@
 
 use serde_json::{json, Value};
 use std::collections::BTreeSet;
+use std::sync::{Mutex, MutexGuard};
+use std::time::Instant;
 
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::{CallBudget, ChatReply, Message, Part, VlmClient, VlmError, VlmStep};
 
-/// Keeps the running VLM time and turns messages into trace JSON.
+/// Keeps the job's VLM waiting time and its exchanges, and turns messages into trace
+/// JSON. Shared by reference: calls made at the same time (the `view_box` asks) are
+/// numbered in the order their replies arrive.
 #[derive(Debug, Default)]
 pub struct VlmLog {
-    pub vlm_ms: f64,
-    pub calls: usize,
+    inner: Mutex<Inner>,
+}
+
+#[derive(Debug, Default)]
+struct Inner {
+    /// Wall time with at least one call in flight, over the calls that ended.
+    vlm_ms: f64,
+    /// Replies received.
+    calls: usize,
     /// Every exchange of the job: `{vlm_call, step, sent, reply | error}`.
     exchanges: Vec<Value>,
+    in_flight: usize,
+    waiting_since: Option<Instant>,
+}
+
+/// One call in flight; when the last one ends, the time since the first began is VLM time
+/// (so calls that overlap count once, and `non_vlm_ms` stays the job's own time).
+struct Waiting<'a>(&'a VlmLog);
+
+impl<'a> Waiting<'a> {
+    fn begin(log: &'a VlmLog) -> Self {
+        let mut i = log.lock();
+        if i.in_flight == 0 {
+            i.waiting_since = Some(Instant::now());
+        }
+        i.in_flight += 1;
+        Waiting(log)
+    }
+}
+
+impl Drop for Waiting<'_> {
+    fn drop(&mut self) {
+        let mut i = self.0.lock();
+        i.in_flight = i.in_flight.saturating_sub(1);
+        if i.in_flight == 0 {
+            if let Some(t) = i.waiting_since.take() {
+                i.vlm_ms += t.elapsed().as_secs_f64() * 1000.0;
+            }
+        }
+    }
 }
 
 /// Trace name of a step.
@@ -74,31 +114,40 @@ impl VlmLog {
         Value::Array(out)
     }
 
-    /// Record one reply; returns its trace form.
-    pub fn reply(&mut self, r: &ChatReply) -> Value {
-        self.vlm_ms += r.latency_ms as f64;
-        self.calls += 1;
-        json!({"vlm_call": self.calls, "text": r.text, "usage": r.usage, "attempts": r.attempts, "latency_ms": r.latency_ms})
+    fn lock(&self) -> MutexGuard<'_, Inner> {
+        // The data stays consistent under a poisoned lock: every update is one push or sum.
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Milliseconds the job waited for the VLM (overlapping calls count once).
+    pub fn vlm_ms(&self) -> f64 {
+        self.lock().vlm_ms
     }
 
     /// Send `messages` for `step` (its reply cap) and keep the exchange; `sent` is the
     /// trace form of what is new in them. Returns the reply and its trace record.
     pub async fn call(
-        &mut self,
+        &self,
         client: &VlmClient,
         step: VlmStep,
         messages: &[Message],
         sent: Value,
         budget: &CallBudget,
     ) -> Result<(ChatReply, Value), VlmError> {
-        match client.chat_step(step, messages, budget).await {
-            Ok(reply) => {
-                let rec = self.reply(&reply);
-                self.exchanges.push(json!({"vlm_call": self.calls, "step": step_name(step), "sent": sent, "reply": rec}));
-                Ok((reply, rec))
+        let waiting = Waiting::begin(self);
+        let result = client.chat_step(step, messages, budget).await;
+        drop(waiting);
+        let mut i = self.lock();
+        match result {
+            Ok(r) => {
+                i.calls += 1;
+                let rec = json!({"vlm_call": i.calls, "text": r.text, "usage": r.usage, "attempts": r.attempts, "latency_ms": r.latency_ms});
+                let exchange = json!({"vlm_call": i.calls, "step": step_name(step), "sent": sent, "reply": rec});
+                i.exchanges.push(exchange);
+                Ok((r, rec))
             }
             Err(e) => {
-                self.exchanges.push(json!({
+                i.exchanges.push(json!({
                     "step": step_name(step),
                     "sent": sent,
                     "messages_in_request": messages.len(),
@@ -117,7 +166,8 @@ impl VlmLog {
             Ok(steps) => steps.iter().for_each(|s| recorded_calls(s, &mut recorded)),
             Err(err) => tracing::warn!(job = %ctx.job_id, "cannot read the trace: {err}"),
         }
-        let missing: Vec<&Value> = self
+        let missing: Vec<Value> = self
+            .lock()
             .exchanges
             .iter()
             .filter(|x| {
@@ -125,6 +175,7 @@ impl VlmLog {
                     .and_then(Value::as_u64)
                     .is_none_or(|n| !recorded.contains(&n))
             })
+            .cloned()
             .collect();
         ctx.trace
             .step(

@@ -423,7 +423,6 @@ impl JobSystem {
             Err(e) => Err(e),
         };
         drop(lease);
-        let outcome_label;
         if self.shutdown.is_cancelled() && token.is_cancelled() {
             // Interrupted by shutdown (not by the user): leave it resumable.
             if let Err(e) = self.store.requeue_job(&job.id).await {
@@ -434,9 +433,21 @@ impl JobSystem {
             drop(live);
             return;
         }
+        let outcome_label = match &outcome {
+            Ok(_) => "succeeded",
+            Err(f) if f.code == "canceled" => "canceled",
+            Err(_) => "failed",
+        };
+        // Observed before the outcome is written: a client that sees the job finished
+        // must also find it counted in /metrics.
+        self.metrics
+            .job_duration
+            .get_or_create(&OutcomeLabels {
+                outcome: outcome_label.to_string(),
+            })
+            .observe(started.elapsed().as_secs_f64());
         let written = match outcome {
             Ok(out) => {
-                outcome_label = "succeeded";
                 self.store
                     .finish_job(
                         &job.id,
@@ -447,11 +458,6 @@ impl JobSystem {
                     .await
             }
             Err(f) => {
-                outcome_label = if f.code == "canceled" {
-                    "canceled"
-                } else {
-                    "failed"
-                };
                 let err = error_json(&job.id, &f);
                 self.store
                     .finish_job(&job.id, JobStatus::Failed, None, Some(&err))
@@ -465,12 +471,6 @@ impl JobSystem {
             Ok(false) => tracing::info!(job = %job.id, "job was canceled while running"),
             Err(e) => tracing::error!(job = %job.id, "cannot record job outcome: {e}"),
         }
-        self.metrics
-            .job_duration
-            .get_or_create(&OutcomeLabels {
-                outcome: outcome_label.to_string(),
-            })
-            .observe(started.elapsed().as_secs_f64());
     }
 }
 

@@ -68,6 +68,12 @@ impl CallBudget {
             .is_ok()
     }
 
+    /// Calls left: how many more `try_take` would grant.
+    pub fn calls_left(&self) -> u32 {
+        self.max_calls
+            .saturating_sub(self.used.load(Ordering::SeqCst))
+    }
+
     /// Calls taken so far.
     pub fn calls_used(&self) -> u32 {
         self.used.load(Ordering::SeqCst)
@@ -104,5 +110,23 @@ impl CallBudget {
     /// Total token usage of the job so far.
     pub fn total_usage(&self) -> Usage {
         self.usage.lock().map(|g| *g).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn calls_left_counts_what_try_take_still_grants() {
+        let b = CallBudget::new(2, None);
+        for left in [2, 1] {
+            assert_eq!(b.calls_left(), left);
+            assert!(b.try_take());
+        }
+        assert_eq!(b.calls_left(), 0);
+        assert!(!b.try_take());
+        assert_eq!((b.calls_left(), b.calls_used()), (0, 2));
+        assert_eq!(CallBudget::new(0, None).calls_left(), 0);
     }
 }

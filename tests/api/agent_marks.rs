@@ -262,9 +262,10 @@ async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_sa
     }
 }
 
-/// With `view_box_views` above 1, each view left with the footprint is asked in turn (at
-/// most that many, no view twice, only views whose part does not come within 1 % of the
-/// frame's edge), and every answer that holds the part replaces that view's footprint.
+/// With `view_box_views` above 1, the views left with the footprint are asked at the same
+/// time (at most that many and no more than the job's VLM budget has left, no view twice,
+/// only views whose part does not come within 1 % of the frame's edge), and every answer
+/// that holds the part replaces that view's footprint.
 /// The shared scene's chosen frame is the first whose mark at the edge leaves two views to
 /// ask.
 #[tokio::test]
@@ -310,9 +311,12 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
                     pick_image(format!("{frame:05}")),
                     pick_object(cut as u32),
                 ];
-                script.extend((0..asks).map(|_| Reply::ok(whole.to_string())));
+                // Slow enough answers that views asked one after another never overlap.
+                script.extend((0..asks).map(|_| Reply::ok(whole.to_string()).delayed(400)));
                 f.vlm.script_push(script);
+                f.vlm.take_max_in_flight();
                 let job = f.run_job(QUERY).await;
+                let at_once = f.vlm.take_max_in_flight();
                 while f.vlm.remaining() > 0 {
                     f.vlm.script_pop();
                 }
@@ -339,6 +343,17 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
                 let unique: std::collections::BTreeSet<&String> = ids.iter().collect();
                 assert_eq!(unique.len(), ids.len(), "no view asked twice: {ids:?}");
                 assert_eq!(f.vlm.requests().len() - before, 3 + asks);
+                assert_eq!(at_once, asks.max(1), "the views are asked at the same time");
+                // Calls that overlap count once in the job's VLM time.
+                let mut latencies = std::collections::BTreeMap::new();
+                call_latencies(&job["trace"], &mut latencies);
+                let summed: f64 = latencies.values().sum();
+                let vlm_ms = steps(&job, "summary")[0]["outputs"]["vlm_ms"]
+                    .as_f64()
+                    .unwrap_or_default();
+                if asks >= 2 {
+                    assert!(vlm_ms < summed - 200.0, "{vlm_ms} of {latencies:?}");
+                }
                 let stopped = proj["view_box"]["stopped"].as_str().unwrap_or_default();
                 assert_eq!(stopped.contains("budget"), asks < most, "{proj:#}");
                 let listed: Vec<&str> = proj["view_box"]["views"]
@@ -360,6 +375,23 @@ async fn several_views_of_a_partly_seen_object_get_their_boxes_from_the_vlm() {
             }
         }
         assert!(found, "no frame's mark at the edge left two views to ask");
+    }
+}
+
+/// Each VLM reply's `latency_ms` anywhere in `v`, by its `vlm_call` number.
+fn call_latencies(v: &serde_json::Value, out: &mut std::collections::BTreeMap<u64, f64>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            if let (Some(n), Some(ms)) = (
+                m.get("vlm_call").and_then(serde_json::Value::as_u64),
+                m.get("latency_ms").and_then(serde_json::Value::as_f64),
+            ) {
+                out.insert(n, ms);
+            }
+            m.values().for_each(|x| call_latencies(x, out));
+        }
+        serde_json::Value::Array(a) => a.iter().for_each(|x| call_latencies(x, out)),
+        _ => {}
     }
 }
 

@@ -135,7 +135,8 @@ async fn settle(base: &str) {
     }
 }
 
-fn names(dir: &Path) -> BTreeSet<String> {
+/// The names in `dir`, sorted; empty when it does not exist.
+pub fn names(dir: &Path) -> BTreeSet<String> {
     std::fs::read_dir(dir)
         .map(|rd| {
             rd.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())

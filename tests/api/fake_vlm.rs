@@ -8,6 +8,7 @@ use axum::routing::post;
 use axum::{Json, Router};
 use serde_json::{json, Value};
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -54,6 +55,26 @@ impl Reply {
 pub struct Script {
     queue: Mutex<VecDeque<Reply>>,
     requests: Mutex<Vec<Value>>,
+    in_flight: AtomicUsize,
+    /// The most requests seen waiting for their answers at once.
+    max_in_flight: AtomicUsize,
+}
+
+/// A request being answered; counted out when its answer is sent (or it is dropped).
+struct InFlight(Arc<Script>);
+
+impl InFlight {
+    fn begin(s: &Arc<Script>) -> Self {
+        let now = s.in_flight.fetch_add(1, Ordering::SeqCst) + 1;
+        s.max_in_flight.fetch_max(now, Ordering::SeqCst);
+        InFlight(s.clone())
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        self.0.in_flight.fetch_sub(1, Ordering::SeqCst);
+    }
 }
 
 /// Handle on a running fake server.
@@ -65,6 +86,7 @@ pub struct FakeVlm {
 }
 
 async fn handler(State(s): State<Arc<Script>>, Json(body): Json<Value>) -> Response {
+    let _counted = InFlight::begin(&s);
     s.requests.lock().unwrap().push(body);
     // Unscripted requests get a non-retryable 400, so a test sees them as a failure.
     let r = s
@@ -128,6 +150,13 @@ impl FakeVlm {
     #[allow(dead_code)]
     pub fn script_pop(&self) -> Option<Reply> {
         self.script.queue.lock().unwrap().pop_front()
+    }
+
+    /// The most requests that were being answered at once since the last call (which
+    /// starts the count again).
+    #[allow(dead_code)]
+    pub fn take_max_in_flight(&self) -> usize {
+        self.script.max_in_flight.swap(0, Ordering::SeqCst)
     }
 
     /// Replies not yet used.

@@ -132,15 +132,17 @@ impl TestApp {
 
     /// Poll a job until its status is terminal (or the timeout passes).
     pub async fn wait_job(&self, id: &str, timeout: Duration) -> serde_json::Value {
-        let start = std::time::Instant::now();
-        loop {
-            let (_, j) = self.get_json(&format!("/v1/jobs/{id}")).await;
-            let st = j["status"].as_str().unwrap_or("");
-            if matches!(st, "succeeded" | "failed" | "canceled") || start.elapsed() > timeout {
-                return j;
-            }
-            tokio::time::sleep(Duration::from_millis(25)).await;
-        }
+        let ended = |j: &serde_json::Value| {
+            matches!(
+                j["status"].as_str(),
+                Some("succeeded" | "failed" | "canceled")
+            )
+            .then_some(true)
+        };
+        let (Ok(j) | Err(j)) = self
+            .poll(&format!("/v1/jobs/{id}"), 25, timeout, ended)
+            .await;
+        j
     }
 
     /// Poll a job until its status is `status`: `Ok` with the job's document then, `Err`
@@ -151,17 +153,9 @@ impl TestApp {
         status: &str,
         timeout: Duration,
     ) -> Result<serde_json::Value, serde_json::Value> {
-        let start = std::time::Instant::now();
-        loop {
-            let (_, j) = self.get_json(&format!("/v1/jobs/{id}")).await;
-            if j["status"] == status {
-                return Ok(j);
-            }
-            if start.elapsed() > timeout {
-                return Err(j);
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
+        let reached = |j: &serde_json::Value| (j["status"] == status).then_some(true);
+        self.poll(&format!("/v1/jobs/{id}"), 10, timeout, reached)
+            .await
     }
 
     /// Poll a scene until its status is `until`: `Ok` with the scene's document then, `Err`
@@ -173,16 +167,36 @@ impl TestApp {
         until: &str,
         timeout: Duration,
     ) -> Result<serde_json::Value, serde_json::Value> {
+        let settled = |s: &serde_json::Value| {
+            if s["status"] == until {
+                Some(true)
+            } else {
+                (s["status"] != "indexing").then_some(false)
+            }
+        };
+        self.poll(&format!("/v1/scenes/{id}"), 20, timeout, settled)
+            .await
+    }
+
+    /// GET `path` every `every_ms` until `settle` decides (`Some(true)`: `Ok` with the
+    /// document, `Some(false)`: `Err` with it) or the timeout passes (`Err` with the last
+    /// document seen).
+    async fn poll(
+        &self,
+        path: &str,
+        every_ms: u64,
+        timeout: Duration,
+        settle: impl Fn(&serde_json::Value) -> Option<bool>,
+    ) -> Result<serde_json::Value, serde_json::Value> {
         let start = std::time::Instant::now();
         loop {
-            let (_, s) = self.get_json(&format!("/v1/scenes/{id}")).await;
-            if s["status"] == until {
-                return Ok(s);
+            let (_, doc) = self.get_json(path).await;
+            match settle(&doc) {
+                Some(true) => return Ok(doc),
+                Some(false) => return Err(doc),
+                None if start.elapsed() > timeout => return Err(doc),
+                None => tokio::time::sleep(Duration::from_millis(every_ms)).await,
             }
-            if s["status"] != "indexing" || start.elapsed() > timeout {
-                return Err(s);
-            }
-            tokio::time::sleep(Duration::from_millis(20)).await;
         }
     }
 

@@ -1,23 +1,11 @@
 //! A frame append killed between moving its files into the scene and committing their
 //! rows: the next start removes the files no row names, and the scene stays whole.
 
-use crate::crash::{kill, start};
+use crate::crash::{kill, names, start};
 use crate::frames::more_frames;
 use crate::helpers::{tar_of, upload_tiny_scene_to};
 use serde_json::Value;
 use std::time::{Duration, Instant};
-
-fn colour_files(dir: &std::path::Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect()
-        })
-        .unwrap_or_default();
-    v.sort();
-    v
-}
 
 #[tokio::test]
 async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
@@ -32,7 +20,7 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
     let c = reqwest::Client::new();
     let id = upload_tiny_scene_to(&c, &s.base, 3).await;
     let colour = data.join("scenes").join(&id).join("color");
-    let before = colour_files(&colour);
+    let before = names(&colour);
     assert_eq!(before.len(), 3, "{before:?}");
 
     let url = format!("{}/v1/scenes/{id}/frames", s.base);
@@ -58,7 +46,7 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
     assert!(colour.join("1000.jpg").exists(), "killed inside the window");
 
     let mut s = start(&data, &[("GROUNDER_DETECTOR", "none")]);
-    assert_eq!(colour_files(&colour), before, "files no row names are gone");
+    assert_eq!(names(&colour), before, "files no row names are gone");
     let r = c
         .get(format!("{}/v1/scenes/{id}", s.base))
         .send()
@@ -77,11 +65,6 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
     assert_eq!(r.status().as_u16(), 200);
     kill(&mut s.child, "-TERM");
     let mut s = start(&data, &[("GROUNDER_DETECTOR", "none")]);
-    assert_eq!(
-        colour_files(&colour).len(),
-        5,
-        "{:?}",
-        colour_files(&colour)
-    );
+    assert_eq!(names(&colour).len(), 5, "{:?}", names(&colour));
     kill(&mut s.child, "-TERM");
 }
