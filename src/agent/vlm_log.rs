@@ -6,7 +6,7 @@
 use serde_json::{json, Value};
 use std::collections::BTreeSet;
 use std::sync::{Mutex, MutexGuard};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::{CallBudget, ChatReply, Message, Part, VlmClient, VlmError, VlmStep};
@@ -21,41 +21,36 @@ pub struct VlmLog {
 
 #[derive(Debug, Default)]
 struct Inner {
-    /// Wall time with at least one call in flight, over the calls that ended.
-    vlm_ms: f64,
+    /// When each reply's requests were on the wire (the client's `latency_ms`, ending
+    /// when the reply came back).
+    spans: Vec<(Instant, Instant)>,
     /// Replies received.
     calls: usize,
     /// Every exchange of the job: `{vlm_call, step, sent, reply | error}`.
     exchanges: Vec<Value>,
-    in_flight: usize,
-    waiting_since: Option<Instant>,
 }
 
-/// One call in flight; when the last one ends, the time since the first began is VLM time
-/// (so calls that overlap count once, and `non_vlm_ms` stays the job's own time).
-struct Waiting<'a>(&'a VlmLog);
-
-impl<'a> Waiting<'a> {
-    fn begin(log: &'a VlmLog) -> Self {
-        let mut i = log.lock();
-        if i.in_flight == 0 {
-            i.waiting_since = Some(Instant::now());
-        }
-        i.in_flight += 1;
-        Waiting(log)
-    }
-}
-
-impl Drop for Waiting<'_> {
-    fn drop(&mut self) {
-        let mut i = self.0.lock();
-        i.in_flight = i.in_flight.saturating_sub(1);
-        if i.in_flight == 0 {
-            if let Some(t) = i.waiting_since.take() {
-                i.vlm_ms += t.elapsed().as_secs_f64() * 1000.0;
+/// Milliseconds covered by at least one span: calls that overlap count once, so that
+/// `non_vlm_ms` stays the job's own time.
+fn covered_ms(spans: &[(Instant, Instant)]) -> f64 {
+    let mut sorted = spans.to_vec();
+    sorted.sort_by_key(|s| s.0);
+    let mut total = Duration::ZERO;
+    let mut current: Option<(Instant, Instant)> = None;
+    for (start, end) in sorted {
+        current = match current {
+            Some((s, e)) if start <= e => Some((s, e.max(end))),
+            Some((s, e)) => {
+                total += e - s;
+                Some((start, end))
             }
-        }
+            None => Some((start, end)),
+        };
     }
+    if let Some((s, e)) = current {
+        total += e - s;
+    }
+    total.as_secs_f64() * 1000.0
 }
 
 /// Trace name of a step.
@@ -119,9 +114,9 @@ impl VlmLog {
         self.inner.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Milliseconds the job waited for the VLM (overlapping calls count once).
+    /// Milliseconds the job waited for the VLM's replies (overlapping calls count once).
     pub fn vlm_ms(&self) -> f64 {
-        self.lock().vlm_ms
+        covered_ms(&self.lock().spans)
     }
 
     /// Send `messages` for `step` (its reply cap) and keep the exchange; `sent` is the
@@ -134,12 +129,15 @@ impl VlmLog {
         sent: Value,
         budget: &CallBudget,
     ) -> Result<(ChatReply, Value), VlmError> {
-        let waiting = Waiting::begin(self);
         let result = client.chat_step(step, messages, budget).await;
-        drop(waiting);
         let mut i = self.lock();
         match result {
             Ok(r) => {
+                let end = Instant::now();
+                let start = end
+                    .checked_sub(Duration::from_millis(r.latency_ms))
+                    .unwrap_or(end);
+                i.spans.push((start, end));
                 i.calls += 1;
                 let rec = json!({"vlm_call": i.calls, "text": r.text, "usage": r.usage, "attempts": r.attempts, "latency_ms": r.latency_ms});
                 let exchange = json!({"vlm_call": i.calls, "step": step_name(step), "sent": sent, "reply": rec});
@@ -188,5 +186,29 @@ impl VlmLog {
                 }}),
             )
             .await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::covered_ms;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn overlapping_spans_count_once_and_apart_ones_add_up() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        assert_eq!(covered_ms(&[]), 0.0);
+        // 0-100 and 300-350 apart; 40-120 overlaps the first; 330-340 lies inside the second.
+        let spans = [
+            (at(300), at(350)),
+            (at(0), at(100)),
+            (at(40), at(120)),
+            (at(330), at(340)),
+        ];
+        assert!((covered_ms(&spans) - 170.0).abs() < 1e-6);
+        // One after another they add up, as the replies' latencies did before.
+        let apart = [(at(0), at(100)), (at(100), at(150))];
+        assert!((covered_ms(&apart) - 150.0).abs() < 1e-6);
     }
 }
