@@ -291,10 +291,11 @@ impl VlmGrounder {
 
         let total_ms = ms(started);
         let usage = budget.total_usage();
+        let vlm_ms = log.vlm_ms();
         let summary = json!({
             "total_ms": total_ms,
-            "vlm_ms": log.vlm_ms(),
-            "non_vlm_ms": (total_ms - log.vlm_ms()).max(0.0),
+            "vlm_ms": vlm_ms,
+            "non_vlm_ms": (total_ms - vlm_ms).max(0.0),
             "vlm_calls": budget.calls_used(),
             "tokens": {"prompt": usage.prompt, "completion": usage.completion, "total": usage.total},
             "feedback_rounds": choice.feedback_rounds,

@@ -23,9 +23,8 @@ pub struct VlmLog {
 struct Inner {
     /// When each reply's requests were on the wire (the client's `latency_ms`, ending
     /// when the reply came back).
+    /// One per reply received, in arrival order: its position is its `vlm_call` number.
     spans: Vec<(Instant, Instant)>,
-    /// Replies received.
-    calls: usize,
     /// Every exchange of the job: `{vlm_call, step, sent, reply | error}`.
     exchanges: Vec<Value>,
 }
@@ -138,9 +137,10 @@ impl VlmLog {
                     .checked_sub(Duration::from_millis(r.latency_ms))
                     .unwrap_or(end);
                 i.spans.push((start, end));
-                i.calls += 1;
-                let rec = json!({"vlm_call": i.calls, "text": r.text, "usage": r.usage, "attempts": r.attempts, "latency_ms": r.latency_ms});
-                let exchange = json!({"vlm_call": i.calls, "step": step_name(step), "sent": sent, "reply": rec});
+                let n = i.spans.len();
+                let rec = json!({"vlm_call": n, "text": r.text, "usage": r.usage, "attempts": r.attempts, "latency_ms": r.latency_ms});
+                let exchange =
+                    json!({"vlm_call": n, "step": step_name(step), "sent": sent, "reply": rec});
                 i.exchanges.push(exchange);
                 Ok((r, rec))
             }
