@@ -46,6 +46,30 @@ impl DepthSegmenter {
         2 * reached >= inside.len()
     }
 
+    /// Does the band of `cut` cells lie flat like a floor or a table top, rather than stand
+    /// upright like the object's own lower side? Down each column of the box, a surface
+    /// lying flat recedes from the camera while its height stays; an upright side rises
+    /// while its distance stays. A small object seen from the side (a cup on a shelf at eye
+    /// level) fills most of its box's rows with its lowest few centimetres, and no support
+    /// is seen at all when the camera is below it.
+    pub(super) fn lies_flat(g: &Grid, cut: &[bool]) -> bool {
+        let [bx0, by0, bx1, by1] = g.b;
+        let (mut rise, mut recede) = (0.0, 0.0);
+        for x in bx0..bx1 {
+            let mut h = (f64::INFINITY, f64::NEG_INFINITY);
+            let mut r = h;
+            for i in (by0..by1).map(|y| y * g.w + x).filter(|&i| cut[i]) {
+                h = (h.0.min(g.height[i]), h.1.max(g.height[i]));
+                r = (r.0.min(g.reach[i]), r.1.max(g.reach[i]));
+            }
+            if h.0 < h.1 {
+                rise += h.1 - h.0;
+                recede += r.1 - r.0;
+            }
+        }
+        recede > rise
+    }
+
     /// Keep the largest 4-connected component of `region`.
     pub(super) fn largest_component(g: &Grid, region: &[bool]) -> Vec<bool> {
         let mut label = vec![0u32; region.len()];

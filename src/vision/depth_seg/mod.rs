@@ -9,7 +9,8 @@
 //! (two touching objects at one depth, told apart by colour).
 //! (3) Where the growth leaked onto the supporting surface (floor, table top), the points
 //! within a few cm of the lowest height (gravity = the output frame's +z) are cut and the
-//! growth is redone. (4) Among the surfaces that stay mostly inside the box, the one whose
+//! growth is redone, when that band lies flat (down the box's columns it recedes from the
+//! camera more than it rises) and is not the object's own upright lower side. (4) Among the surfaces that stay mostly inside the box, the one whose
 //! extent fills the box best while running least past its edges is the object: a tight box
 //! ends where the object ends, an occluder in front covers only part of it, and the
 //! background behind runs on past it. (5) Small holes (missing depth) are closed and
@@ -104,6 +105,8 @@ struct Grid {
     z: Vec<f64>,
     /// height along the output frame's z axis
     height: Vec<f64>,
+    /// horizontal distance from the camera's centre in the output frame
+    reach: Vec<f64>,
     rgb: Vec<[u8; 3]>,
     /// cell centre inside the query box
     inb: Vec<bool>,
@@ -183,8 +186,10 @@ impl DepthSegmenter {
         let h = ((y1 - y0) as usize).div_ceil(s as usize);
         let cam = input.camera;
         let to_out = cam.cam_to_out();
+        let eye = cam.centre();
         let n = w * h;
-        let (mut z, mut height, mut rgb, mut inb) = (
+        let (mut z, mut height, mut reach, mut rgb, mut inb) = (
+            vec![0.0; n],
             vec![0.0; n],
             vec![0.0; n],
             vec![[0u8; 3]; n],
@@ -217,7 +222,9 @@ impl DepthSegmenter {
                     Some(k) => k.unproject(dx as f64, dy as f64, zm),
                     None => cam.color.unproject(u as f64, v as f64, zm),
                 };
-                height[i] = transform_point(&to_out, &p).z;
+                let q = transform_point(&to_out, &p);
+                height[i] = q.z;
+                reach[i] = (q.x - eye.x).hypot(q.y - eye.y);
             }
         }
         (b[0] < b[2]).then_some(Grid {
@@ -228,6 +235,7 @@ impl DepthSegmenter {
             h,
             z,
             height,
+            reach,
             rgb,
             inb,
             b,
@@ -426,7 +434,11 @@ impl DepthSegmenter {
             (Some(a), Some(b)) => b - a + 1,
             _ => 0,
         };
-        (frac > 0.03 && frac < 0.7 && span as f64 >= 0.15 * (by1 - by0) as f64).then_some(cut)
+        (frac > 0.03
+            && frac < 0.7
+            && span as f64 >= 0.15 * (by1 - by0) as f64
+            && Self::lies_flat(g, &cut))
+        .then_some(cut)
     }
 
     /// Region for one mode, with the support removed; and its fraction outside the box.
