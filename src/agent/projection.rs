@@ -25,6 +25,7 @@ use crate::geometry::ensemble::{
 };
 use crate::geometry::export::point_colours;
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
+use crate::geometry::round_back::round_back;
 use crate::geometry::support::{context_points, extend_to_support, median_point};
 use crate::geometry::{
     cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
@@ -523,7 +524,10 @@ pub async fn run(
                 } else {
                     (b, Vec::new())
                 };
-                (b, moved, planar, hidden, reach)
+                let placed = moved.iter().any(|m| m.axis != "z");
+                let (b, round) =
+                    round_back(&b, &fusion.kept, eye.into(), placed, &params.round_back);
+                (b, moved, planar, hidden, reach, round)
             });
             let support_ms = ms(tsup);
             // The masks of the views used and the object's points, written out as encoded.
@@ -551,7 +555,7 @@ pub async fn run(
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved, planar, hidden_base, floor_reach) = support.ok_or_else(|| {
+    let (bbox, moved, planar, hidden_base, floor_reach, round_back) = support.ok_or_else(|| {
         JobFailure::new("projection_failed", "no points survived outlier removal")
     })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
@@ -569,7 +573,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

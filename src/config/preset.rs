@@ -32,6 +32,7 @@ impl Method {
         g.depth_fill.enabled = false;
         g.layout.enabled = false;
         g.support.enabled = false;
+        g.round_back.enabled = false;
         agent.good_depth_fraction = agent.min_depth_fraction;
         agent.candidates.enabled = false;
     }
@@ -52,6 +53,7 @@ mod tests {
         assert_eq!(g.cluster_voxel, 0.0);
         assert!(!g.consensus.mask_votes && !g.consensus.free_space);
         assert!(!g.depth_fill.enabled && !g.layout.enabled && !g.support.enabled);
+        assert!(!g.round_back.enabled);
         assert!(!a.candidates.enabled);
         // The paper's own settings stay as they are.
         assert_eq!((g.erode_kernel, g.keep_components, g.max_views), (15, 2, 7));

@@ -29,6 +29,7 @@ pub mod params;
 pub mod partial;
 pub mod planar;
 pub mod projection;
+pub mod round_back;
 pub mod sightline;
 pub mod support;
 #[cfg(test)]

@@ -78,6 +78,8 @@ pub struct GeometryParams {
     pub wall_sweep: super::WallSweepParams,
     /// Support completion of the fused box (ours, not the paper's; see `support.rs`).
     pub support: super::SupportParams,
+    /// A round body's hidden back, seen from one side (ours; see `round_back.rs`).
+    pub round_back: super::round_back::RoundBackParams,
 }
 
 impl Default for GeometryParams {
@@ -109,6 +111,7 @@ impl Default for GeometryParams {
             layout: super::LayoutParams::default(),
             wall_sweep: super::WallSweepParams::default(),
             support: super::SupportParams::default(),
+            round_back: super::round_back::RoundBackParams::default(),
         }
     }
 }
