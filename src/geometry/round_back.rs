@@ -233,7 +233,7 @@ mod tests {
         let (cx, r) = (2.0, 0.04);
         let pts = wall_of(
             |t| {
-                let a = (100.0 + 160.0 * t as f64).to_radians();
+                let a = (100.0 + 160.0 * t).to_radians();
                 Some((cx + r * a.cos(), r * a.sin()))
             },
             40,
