@@ -96,6 +96,11 @@ async fn unparsable_then_invalid_image_then_success() {
     assert_eq!(sel[0]["outputs"]["image_id"], format!("{frame:05}"));
     let inst = steps(&job, "instance_selection");
     assert_eq!(inst[0]["outputs"]["asked_vlm"], false);
+    // The synthetic scene's objects are boxes: their box gets no round back, and the
+    // trace says why.
+    let rb = &steps(&job, "projection")[0]["outputs"]["round_back"];
+    assert_eq!(rb["applied"], false, "{rb}");
+    assert!(rb["skipped"].is_string() && rb["width"].is_number(), "{rb}");
     let summary = &steps(&job, "summary")[0]["outputs"];
     assert_eq!(summary["feedback_rounds"], 2);
     assert_eq!(summary["vlm_calls"], 4);
