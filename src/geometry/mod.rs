@@ -7,7 +7,8 @@
 //! among the kept views → [`fuse_clouds`] (union, [`free_space_votes`], outlier removal,
 //! AABB; [`fuse_views`] is the paper's version of these steps) → [`extend_to_support`]
 //! (faces moved through unseen space onto the floor or wall the object rests on; ours) →
-//! [`snap_planar_to_wall`] (a flat object's depth measured against its wall in one view; ours).
+//! [`snap_planar_to_wall`] (a flat object's depth measured against its wall in one view; ours)
+//! → [`round_back::round_back`] (a round body seen from one side given its hidden back; ours).
 //! Before segmenting, [`fill_depth`] completes the chosen view's missing depth from the other
 //! frames and, for flat objects no frame measured, from the room's box ([`estimate_room`]).
 
