@@ -209,21 +209,30 @@ pub fn round_back(
 mod tests {
     use super::*;
 
-    /// Points of the side of a vertical surface given by its horizontal profile, 12 cm high.
-    fn wall_of(profile: impl Fn(f64) -> Option<(f64, f64)>, steps: usize) -> Vec<Point3<f64>> {
+    /// Points of the side of a vertical surface given by its horizontal profile over
+    /// `t` in 0..=1, 12 cm high.
+    fn wall_of(profile: impl Fn(f64) -> (f64, f64), steps: usize) -> Vec<Point3<f64>> {
         let mut pts = Vec::new();
         for i in 0..=steps {
-            if let Some((x, y)) = profile(i as f64 / steps as f64) {
-                for k in 0..12 {
-                    pts.push(Point3::new(x, y, 1.0 + 0.01 * k as f64));
-                }
+            let (x, y) = profile(i as f64 / steps as f64);
+            for k in 0..12 {
+                pts.push(Point3::new(x, y, 1.0 + 0.01 * k as f64));
             }
         }
         pts
     }
 
-    fn box_of(pts: &[Point3<f64>]) -> Aabb {
-        Aabb::from_points(pts).expect("points")
+    /// The points' box, and [`round_back`] of it seen from the origin with the defaults.
+    fn complete(pts: &[Point3<f64>]) -> (Aabb, Aabb, RoundBack) {
+        let b = Aabb::from_points(pts).expect("points");
+        let (out, rec) = round_back(
+            &b,
+            pts,
+            Point3::origin(),
+            false,
+            &RoundBackParams::default(),
+        );
+        (b, out, rec)
     }
 
     #[test]
@@ -234,19 +243,12 @@ mod tests {
         let pts = wall_of(
             |t| {
                 let a = (100.0 + 160.0 * t).to_radians();
-                Some((cx + r * a.cos(), r * a.sin()))
+                (cx + r * a.cos(), r * a.sin())
             },
             40,
         );
-        let b = box_of(&pts);
+        let (b, out, rec) = complete(&pts);
         assert!(b.max[0] - b.min[0] < 0.5 * 2.0 * r, "one-sided: {b:?}");
-        let (out, rec) = round_back(
-            &b,
-            &pts,
-            Point3::origin(),
-            false,
-            &RoundBackParams::default(),
-        );
         assert!(rec.applied, "{rec:?}");
         let depth = out.max[0] - out.min[0];
         assert!((depth - 2.0 * r).abs() < 0.012, "depth {depth} ({rec:?})");
@@ -268,51 +270,29 @@ mod tests {
     #[test]
     fn a_box_corner_and_a_flat_face_keep_their_box() {
         // A 40 cm cabinet's corner towards the camera: two faces at right angles.
+        let k = std::f64::consts::FRAC_1_SQRT_2;
         let corner = wall_of(
             |t| {
                 let s = 0.4 * (2.0 * t - 1.0);
-                let k = std::f64::consts::FRAC_1_SQRT_2;
-                Some((2.0 + s.abs() * k, s * k))
+                (2.0 + s.abs() * k, s * k)
             },
             40,
         );
-        let b = box_of(&corner);
-        let (out, rec) = round_back(
-            &b,
-            &corner,
-            Point3::origin(),
-            false,
-            &RoundBackParams::default(),
-        );
+        let (b, out, rec) = complete(&corner);
         assert!(!rec.applied && out == b, "{rec:?}");
         assert_eq!(rec.skipped, Some("not an arc"), "{rec:?}");
         // A picture's flat face, head on.
-        let flat = wall_of(|t| Some((2.0, 0.3 * t - 0.15)), 30);
-        let b = box_of(&flat);
-        let (out, rec) = round_back(
-            &b,
-            &flat,
-            Point3::origin(),
-            false,
-            &RoundBackParams::default(),
-        );
+        let (b, out, rec) = complete(&wall_of(|t| (2.0, 0.3 * t - 0.15), 30));
         assert!(!rec.applied && out == b, "{rec:?}");
         // A cylinder seen all round: deep enough already.
         let full = wall_of(
             |t| {
                 let a = (360.0 * t).to_radians();
-                Some((2.0 + 0.05 * a.cos(), 0.05 * a.sin()))
+                (2.0 + 0.05 * a.cos(), 0.05 * a.sin())
             },
             60,
         );
-        let b = box_of(&full);
-        let (_, rec) = round_back(
-            &b,
-            &full,
-            Point3::origin(),
-            false,
-            &RoundBackParams::default(),
-        );
+        let (_, _, rec) = complete(&full);
         assert_eq!(rec.skipped, Some("seen in depth"), "{rec:?}");
     }
 }
