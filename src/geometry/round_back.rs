@@ -14,6 +14,7 @@
 use nalgebra::{Point3, Vector2};
 use serde::{Deserialize, Serialize};
 
+use super::support::percentile;
 use super::Aabb;
 
 /// Settings of [`round_back`].
@@ -66,11 +67,10 @@ pub struct RoundBack {
     pub arc_rms: f64,
 }
 
-/// Percentile `q` (0–100) of `v` (sorted in place; `v` not empty).
-fn percentile(v: &mut [f64], q: f64) -> f64 {
+/// Percentiles `qs` (fractions, 0–1) of `v` (not empty), sorting it once.
+fn sorted_percentiles<const N: usize>(mut v: Vec<f64>, qs: [f64; N]) -> [f64; N] {
     v.sort_by(f64::total_cmp);
-    let i = ((q / 100.0) * (v.len() - 1) as f64).round() as usize;
-    v[i.min(v.len() - 1)]
+    qs.map(|q| percentile(&v, q))
 }
 
 /// Algebraic least-squares circle through 2D points `(a, b)`: `(centre_a, centre_b, r)`.
@@ -115,9 +115,9 @@ pub fn round_back(
         return skip(rec, "few points");
     }
     // Line of sight (horizontal) to the points' median, and across it.
-    let mut xs: Vec<f64> = points.iter().map(|p| p.x).collect();
-    let mut ys: Vec<f64> = points.iter().map(|p| p.y).collect();
-    let centre = Vector2::new(percentile(&mut xs, 50.0), percentile(&mut ys, 50.0));
+    let [cx] = sorted_percentiles(points.iter().map(|p| p.x).collect(), [0.5]);
+    let [cy] = sorted_percentiles(points.iter().map(|p| p.y).collect(), [0.5]);
+    let centre = Vector2::new(cx, cy);
     let e = Vector2::new(eye.x, eye.y);
     let Some(d) = (centre - e).try_normalize(1e-9) else {
         return skip(rec, "above the camera");
@@ -130,10 +130,8 @@ pub fn round_back(
             (q.dot(&d), q.dot(&n))
         })
         .collect();
-    let mut us: Vec<f64> = uv.iter().map(|p| p.0).collect();
-    let mut vs: Vec<f64> = uv.iter().map(|p| p.1).collect();
-    let (u0, u1) = (percentile(&mut us, 2.0), percentile(&mut us, 98.0));
-    let (v0, v1) = (percentile(&mut vs, 2.0), percentile(&mut vs, 98.0));
+    let [u0, u1] = sorted_percentiles(uv.iter().map(|p| p.0).collect(), [0.02, 0.98]);
+    let [v0, v1] = sorted_percentiles(uv.iter().map(|p| p.1).collect(), [0.02, 0.98]);
     let w = v1 - v0;
     if w <= 1e-6 {
         return skip(rec, "no width");
@@ -146,12 +144,12 @@ pub fn round_back(
     // Bulge: nearest points (10th percentile of depth) of the outer sixths against the
     // middle third.
     let t = |v: f64| (v - v0) / w;
-    let mut mid: Vec<f64> = uv
+    let mid: Vec<f64> = uv
         .iter()
         .filter(|p| (1.0 / 3.0..2.0 / 3.0).contains(&t(p.1)))
         .map(|p| p.0)
         .collect();
-    let mut out: Vec<f64> = uv
+    let out: Vec<f64> = uv
         .iter()
         .filter(|p| t(p.1) < 1.0 / 6.0 || t(p.1) > 5.0 / 6.0)
         .map(|p| p.0)
@@ -159,7 +157,11 @@ pub fn round_back(
     if mid.len() < 5 || out.len() < 5 {
         return skip(rec, "few points across");
     }
-    rec.bulge = (percentile(&mut out, 10.0) - percentile(&mut mid, 10.0)) / w;
+    let ([out_near], [mid_near]) = (
+        sorted_percentiles(out, [0.1]),
+        sorted_percentiles(mid, [0.1]),
+    );
+    rec.bulge = (out_near - mid_near) / w;
     if rec.bulge < params.min_bulge {
         return skip(rec, "no bulge");
     }
@@ -170,14 +172,17 @@ pub fn round_back(
     for &(u, v) in &uv {
         // Points outside the 2nd..98th percentiles join the outer strips.
         let k = ((t(v) * bins as f64) as usize).min(bins - 1);
-        let e = profile[k].get_or_insert((f64::INFINITY, Vec::new()));
-        e.0 = e.0.min(u);
-        e.1.push(v);
+        let strip = profile[k].get_or_insert((f64::INFINITY, Vec::new()));
+        strip.0 = strip.0.min(u);
+        strip.1.push(v);
     }
     let env: Vec<(f64, f64)> = profile
         .into_iter()
         .flatten()
-        .map(|(u, mut v)| (u, percentile(&mut v, 50.0)))
+        .map(|(u, v)| {
+            let [median] = sorted_percentiles(v, [0.5]);
+            (u, median)
+        })
         .collect();
     let Some((cu, cv, r)) = fit_circle(&env) else {
         return skip(rec, "no arc");

@@ -269,7 +269,8 @@ pub fn context_points(
     Ok(voxel_downsample(&pts, p.voxel))
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+/// Fraction `q` (0–1) percentile of `sorted` (ascending, not empty), nearest rank.
+pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     let i = ((sorted.len() - 1) as f64 * q).round() as usize;
     sorted[i.min(sorted.len() - 1)]
 }

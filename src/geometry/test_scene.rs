@@ -1,6 +1,7 @@
 //! Test helper: small posed cameras and depth rendered from axis-aligned boxes (shared by
 //! the geometry modules' tests).
 
+use image::{Rgb, RgbImage};
 use nalgebra::{Matrix4, Point3, Vector3};
 
 use super::camera::{look_at_pose, transform_point};
@@ -27,41 +28,84 @@ pub(crate) fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
     }
 }
 
+/// The first of `boxes` (`[min, max]`) that the ray `o + t d`, t > 0, enters: its index
+/// and `t`.
+fn first_hit<'a>(
+    o: &Point3<f64>,
+    d: &Vector3<f64>,
+    boxes: impl Iterator<Item = (&'a [f64; 3], &'a [f64; 3])>,
+) -> Option<(usize, f64)> {
+    let mut best: Option<(usize, f64)> = None;
+    for (n, (lo, hi)) in boxes.enumerate() {
+        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+        for k in 0..3 {
+            if d[k].abs() < 1e-12 {
+                if o[k] < lo[k] || o[k] > hi[k] {
+                    t1 = -1.0;
+                }
+                continue;
+            }
+            let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+        }
+        if t0 <= t1 && t0 > 0.0 && best.is_none_or(|(_, t)| t0 < t) {
+            best = Some((n, t0));
+        }
+    }
+    best
+}
+
+/// The ray from `cam`'s centre through colour pixel `(u, v)`, in the output frame, scaled
+/// so that its parameter is the camera depth.
+fn pixel_ray(cam: &FrameCamera, u: f64, v: f64) -> (Point3<f64>, Vector3<f64>) {
+    let m = cam.cam_to_out();
+    let o = transform_point(&m, &Point3::origin());
+    (o, transform_point(&m, &cam.color.unproject(u, v, 1.0)) - o)
+}
+
 /// Depth of a scene of axis-aligned boxes `[min, max]` seen by `cam`, with readings beyond
 /// `range` metres dropped.
 pub(crate) fn render(cam: &FrameCamera, boxes: &[([f64; 3], [f64; 3])], range: f64) -> DepthMap {
     let (w, h) = cam.depth_size;
-    let m = cam.cam_to_out();
     let mut data = vec![0u16; (w * h) as usize];
     for y in 0..h {
         for x in 0..w {
             let (u, v) = color_pixel(cam, x as f64, y as f64);
-            let o = transform_point(&m, &Point3::origin());
-            let d = transform_point(&m, &cam.color.unproject(u, v, 1.0)) - o; // one metre of depth
-            let mut best = f64::INFINITY;
-            for (lo, hi) in boxes {
-                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-                for k in 0..3 {
-                    if d[k].abs() < 1e-12 {
-                        if o[k] < lo[k] || o[k] > hi[k] {
-                            t1 = -1.0;
-                        }
-                        continue;
-                    }
-                    let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-                    t0 = t0.max(a.min(b));
-                    t1 = t1.min(a.max(b));
+            let (o, d) = pixel_ray(cam, u, v);
+            if let Some((_, t)) = first_hit(&o, &d, boxes.iter().map(|(lo, hi)| (lo, hi))) {
+                if t <= range {
+                    data[(y * w + x) as usize] = (t * 1000.0).round() as u16;
                 }
-                if t0 <= t1 && t0 > 0.0 {
-                    best = best.min(t0);
-                }
-            }
-            if best <= range {
-                data[(y * w + x) as usize] = (best * 1000.0).round() as u16;
             }
         }
     }
     DepthMap::new(w, h, data)
+}
+
+/// Colour, depth and the mask of box `target` of a scene of coloured axis-aligned boxes
+/// `(min, max, rgb)` seen by `cam`, whose depth is aligned with its colour at one size.
+pub(crate) fn render_coloured(
+    cam: &FrameCamera,
+    boxes: &[([f64; 3], [f64; 3], [u8; 3])],
+    target: usize,
+) -> (RgbImage, DepthMap, super::Mask) {
+    let (w, h) = (cam.color.width, cam.color.height);
+    assert_eq!(cam.depth_size, (w, h), "depth aligned with colour");
+    let mut color = RgbImage::new(w, h);
+    let mut depth = vec![0u16; (w * h) as usize];
+    let mut mask = super::Mask::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let (o, d) = pixel_ray(cam, f64::from(x), f64::from(y));
+            if let Some((n, t)) = first_hit(&o, &d, boxes.iter().map(|(lo, hi, _)| (lo, hi))) {
+                depth[(y * w + x) as usize] = (t * 1000.0).round() as u16;
+                color.put_pixel(x, y, Rgb(boxes[n].2));
+                mask.set(x, y, n == target);
+            }
+        }
+    }
+    (color, DepthMap::new(w, h, depth), mask)
 }
 
 /// A room [0, w] x [0, d] x [0, h] as six 10 cm slabs (floor, ceiling, four walls).

@@ -10,11 +10,12 @@
 //! (3) Where the growth leaked onto the supporting surface (floor, table top), the points
 //! within a few cm of the lowest height (gravity = the output frame's +z) are cut and the
 //! growth is redone, when that band lies flat (down the box's columns it recedes from the
-//! camera more than it rises) and is not the object's own upright lower side. (4) Among the surfaces that stay mostly inside the box, the one whose
-//! extent fills the box best while running least past its edges is the object: a tight box
-//! ends where the object ends, an occluder in front covers only part of it, and the
-//! background behind runs on past it. (5) Small holes (missing depth) are closed and
-//! depth-less pixels whose colour matches the region are added back.
+//! camera more than it rises) and is not the object's own upright lower side. (4) Among the
+//! surfaces that stay mostly inside the box, the one whose extent fills the box best while
+//! running least past its edges is the object: a tight box ends where the object ends, an
+//! occluder in front covers only part of it, and the background behind runs on past it.
+//! (5) Small holes (missing depth) are closed and depth-less pixels whose colour matches the
+//! region are added back.
 
 use std::collections::VecDeque;
 

@@ -1,5 +1,6 @@
 use super::*;
 use crate::geometry::camera::look_at_pose;
+use crate::geometry::test_scene::render_coloured;
 use crate::geometry::{DepthMap, FrameCamera, Intrinsics};
 use image::{Rgb, RgbImage};
 use nalgebra::{Matrix4, Point3, Vector3};
@@ -263,47 +264,6 @@ fn hue_survives_shading_but_not_another_colour() {
     assert!(!same_hue(&[8.0, 8.0, 9.0], &[120, 10, 9], 60.0));
 }
 
-/// A scene of axis-aligned boxes `(min, max, colour)` rendered by `cam` (ray casting; the
-/// nearest hit per pixel), and the mask of box `target`.
-fn render(
-    cam: &FrameCamera,
-    boxes: &[([f64; 3], [f64; 3], [u8; 3])],
-    target: usize,
-) -> (RgbImage, DepthMap, Mask) {
-    let k = &cam.color;
-    let (mut color, mut depth, mut mask) = (
-        RgbImage::new(S, S),
-        vec![0u16; (S * S) as usize],
-        Mask::new(S, S),
-    );
-    let eye = cam.pose.fixed_view::<3, 1>(0, 3).into_owned();
-    let rot = cam.pose.fixed_view::<3, 3>(0, 0).into_owned();
-    for v in 0..S {
-        for u in 0..S {
-            // Direction with camera depth 1: the hit's parameter is its depth.
-            let d = rot * Vector3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
-            let mut best: Option<(f64, usize)> = None;
-            for (n, (lo, hi, _)) in boxes.iter().enumerate() {
-                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-                for a in 0..3 {
-                    let (ta, tb) = ((lo[a] - eye[a]) / d[a], (hi[a] - eye[a]) / d[a]);
-                    t0 = t0.max(ta.min(tb));
-                    t1 = t1.min(ta.max(tb));
-                }
-                if t0 < t1 && best.is_none_or(|(t, _)| t0 < t) {
-                    best = Some((t0, n));
-                }
-            }
-            if let Some((t, n)) = best {
-                depth[(v * S + u) as usize] = (t * 1000.0).round() as u16;
-                color.put_pixel(u, v, Rgb(boxes[n].2));
-                mask.set(u, v, n == target);
-            }
-        }
-    }
-    (color, DepthMap::new(S, S, depth), mask)
-}
-
 /// The tight box of a mask.
 fn mask_box(m: &Mask) -> [f32; 4] {
     let px: Vec<(u32, u32)> = (0..S)
@@ -332,7 +292,7 @@ fn a_cups_own_lower_side_is_not_cut_as_its_support() {
             Vector3::z(),
         ),
     );
-    let (color, depth, truth) = render(&cam, &[cup, board, wall], 0);
+    let (color, depth, truth) = render_coloured(&cam, &[cup, board, wall], 0);
     let input = SegmentInput {
         color: &color,
         depth: &depth,
@@ -359,7 +319,7 @@ fn a_table_top_the_growth_ran_onto_is_cut() {
             Vector3::z(),
         ),
     );
-    let (color, depth, truth) = render(&cam, &[block, table, floor], 0);
+    let (color, depth, truth) = render_coloured(&cam, &[block, table, floor], 0);
     let input = SegmentInput {
         color: &color,
         depth: &depth,
