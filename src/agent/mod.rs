@@ -16,6 +16,7 @@ pub mod proposal;
 pub mod query_analysis;
 pub mod stitching;
 pub mod view_box;
+mod view_clouds;
 pub mod vlm_box;
 pub mod vlm_log;
 pub mod wall_sweep;

@@ -3,8 +3,9 @@
 //! by reprojection (our replacement for image matching), a box is segmented in each (a
 //! cached detection of the class, a candidate or the footprint's own box:
 //! [`super::ensemble_boxes`]; the VLM's box in views left with the footprint when the
-//! chosen view saw a part and no view has a detection: [`super::view_box`]), and the views
-//! that agree (chamfer filter) are fused. Before the
+//! chosen view saw a part and no view has a detection: [`super::view_box`]; a view's
+//! candidate is first checked against the chosen view: [`super::view_clouds`]), and the
+//! views that agree (chamfer filter) are fused. Before the
 //! union, each kept view's points are checked against the other views' masks, and the
 //! union against the depth of the frames that see it (ours: `geometry::consensus`).
 
@@ -18,22 +19,17 @@ use std::time::Instant;
 use super::ensemble_boxes::BoxFrom;
 use super::grounding::Choice;
 use super::preselect::Preselection;
+use super::view_clouds::{
+    check_candidates, complete_anchor_depth, segment_points, ViewCloud, ViewSegmenter,
+};
 use super::vlm_log::VlmLog;
 use super::{exports, ms, step, VlmGrounder};
-use crate::geometry::ensemble::{
-    find_views_with_room, mask_points, single_view_box, CandidateFrame,
-};
-use crate::geometry::export::point_colours;
+use crate::geometry::ensemble::{find_views_with_room, single_view_box, CandidateFrame};
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::round_back::round_back;
-use crate::geometry::support::{context_points, extend_to_support, median_point};
-use crate::geometry::{
-    cut_room_walls, cut_wall_leaks, fill_depth, partial_view, snap_planar_to_wall, Aabb,
-    GeometryParams, LayoutParams, Mask, RoomLayout, WallCut,
-};
+use crate::geometry::support::{extend_to_support, median_point};
+use crate::geometry::{partial_view, snap_planar_to_wall, Aabb, LayoutParams, Mask, RoomLayout};
 use crate::jobs::{JobContext, JobFailure};
-use crate::scene::FrameData;
-use crate::vision::{SegmentInput, Segmenter};
 use crate::vlm::CallBudget;
 
 /// The 3D answer.
@@ -57,68 +53,6 @@ pub fn mask_rle(m: &Mask) -> Vec<u32> {
     }
     runs.push(n);
     runs
-}
-
-/// A view's segmentation: raw mask, the object's points, and the context points around it
-/// (for support completion; empty when that is off).
-struct ViewCloud {
-    mask: Mask,
-    points: Vec<Point3<f64>>,
-    context: Vec<Point3<f64>>,
-    /// Wall patches cut from the points (see [`cut_wall_leaks`]).
-    wall_cuts: Vec<WallCut>,
-}
-
-/// `cut_walls`: remove wall patches the mask leaked onto, found in the context around
-/// the mask and, given `walls` (the room's box), on the room's faced walls (not for
-/// objects that are flat against a wall: there the wall is the object's own plane).
-fn segment_points(
-    seg: &dyn Segmenter,
-    frame: &FrameData,
-    image: &RgbImage,
-    bbox: [f32; 4],
-    params: &GeometryParams,
-    cut_walls: bool,
-    walls: Option<&RoomLayout>,
-) -> anyhow::Result<ViewCloud> {
-    let mask = seg.segment(
-        &SegmentInput {
-            color: image,
-            depth: &frame.depth,
-            camera: &frame.camera,
-        },
-        bbox,
-    )?;
-    let points = mask_points(&mask, &frame.camera, &frame.depth, params)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let context = if params.support.enabled && !points.is_empty() {
-        context_points(&mask, bbox, &frame.camera, &frame.depth, &params.support)
-            .map_err(|e| anyhow::anyhow!("{e}"))?
-    } else {
-        Vec::new()
-    };
-    let (points, wall_cuts) = if cut_walls {
-        let (points, mut cuts) = match walls {
-            Some(room) => {
-                // What the frame shows at given points, for telling by colour what stands
-                // within a wall's band (looked up only when some point is in one).
-                let look = |pts: &[Point3<f64>]| point_colours(pts, &frame.camera, image, [0; 3]);
-                cut_room_walls(&points, &context, room, Some(&look), &params.support)
-            }
-            None => (points, Vec::new()),
-        };
-        let (points, more) = cut_wall_leaks(&points, &context, &params.support);
-        cuts.extend(more);
-        (points, cuts)
-    } else {
-        (points, Vec::new())
-    };
-    Ok(ViewCloud {
-        mask,
-        points,
-        context,
-        wall_cuts,
-    })
 }
 
 /// The room's box (`geometry::estimate_room`) when the target is flat against a wall and
@@ -166,48 +100,6 @@ async fn room_walls(
         return Ok(None);
     }
     scene_room(ctx, params.layout.clone()).await
-}
-
-/// The anchor frame with the empty depth pixels inside `bbox` filled from the other usable
-/// frames (`geometry::fill_depth`) and the room's `layout`, when that is on, and what it did
-/// for the trace (null when off; the reason when the frame could not be completed, which
-/// leaves it as it was).
-fn complete_anchor_depth(
-    scene: &crate::scene::SceneData,
-    anchor: FrameData,
-    bbox: [f32; 4],
-    layout: Option<&RoomLayout>,
-    params: &GeometryParams,
-) -> (FrameData, serde_json::Value) {
-    if !params.depth_fill.enabled {
-        return (anchor, serde_json::Value::Null);
-    }
-    let others: Vec<_> = scene
-        .usable_frames()
-        .filter(|f| f.idx != anchor.idx)
-        .map(|f| (&f.camera, f.depth.as_ref()))
-        .collect();
-    complete_depth(anchor, bbox, &others, layout, params)
-}
-
-/// `frame` with the empty depth pixels inside `bbox` completed from `others` and `layout`
-/// (see [`complete_anchor_depth`]).
-fn complete_depth(
-    mut frame: FrameData,
-    bbox: [f32; 4],
-    others: &[(&crate::geometry::FrameCamera, &crate::geometry::DepthMap)],
-    layout: Option<&RoomLayout>,
-    params: &GeometryParams,
-) -> (FrameData, serde_json::Value) {
-    match fill_depth(&frame.camera, &frame.depth, bbox, others, layout, params) {
-        Ok((depth, stats)) => {
-            if stats.filled > 0 {
-                frame.depth = Arc::new(depth);
-            }
-            (frame, json!(stats))
-        }
-        Err(e) => (frame, json!({"error": e.to_string()})),
-    }
 }
 
 /// The chosen view's box segmented, its empty depth pixels completed first (with `layout`
@@ -357,6 +249,30 @@ pub async fn run(
     };
     let decode_ms = ms(td);
     let views_decoded = decoded.len();
+    let vseg = ViewSegmenter {
+        seg: g.segmenter.clone(),
+        params: g.params.geometry.clone(),
+        scene: scene.clone(),
+        room: view_room.clone(),
+        cut_walls,
+        walls: walls.clone(),
+    };
+    // A view's candidate must agree with the chosen view before it is used.
+    let has_candidate = view_boxes.iter().any(|v| v.2 == BoxFrom::Candidate);
+    let (checked, candidate_check, decoded) = if has_candidate && cp.in_views_check {
+        let (vs, ap, views_c) = (vseg.clone(), anchor_pts.clone(), views.clone());
+        let mut vbs = view_boxes.clone();
+        let (checked, trace, vbs, decoded) = tokio::task::spawn_blocking(move || {
+            let (checked, trace) = check_candidates(&vs, &ap, &views_c, &mut vbs, &decoded);
+            (checked, trace, vbs, decoded)
+        })
+        .await
+        .map_err(|e| JobFailure::new("internal", format!("candidate check failed: {e}")))?;
+        view_boxes = vbs;
+        (checked, json!(trace), decoded)
+    } else {
+        (HashMap::new(), serde_json::Value::Null, decoded)
+    };
     let (anchor_idx, partial) = (choice.frame_idx, anchor_partial.partial);
     let asker = super::view_box::Asker {
         g,
@@ -384,8 +300,7 @@ pub async fn run(
     let flat = g.params.geometry.support.is_flat(target_class);
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
     let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let (seg, params, sc, vb, room) = (
-        g.segmenter.clone(),
+    let (params, sc, vb, room) = (
         g.params.geometry.clone(),
         scene.clone(),
         view_boxes.clone(),
@@ -411,33 +326,18 @@ pub async fn run(
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
             let ts = Instant::now();
-            let segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
+            // The views segmented while their candidates were checked are not redone.
+            let mut segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
                 .par_iter()
+                .filter(|(i, _, _)| !checked.contains_key(i))
                 .filter_map(|(i, b, _)| {
-                    let img: &Arc<RgbImage> = decoded.get(i)?;
-                    let (frame, fill) = match &view_room {
-                        Some(room) => complete_depth(
-                            sc.frames[*i].clone(),
-                            *b,
-                            &[],
-                            Some(room.as_ref()),
-                            &params,
-                        ),
-                        None => (sc.frames[*i].clone(), serde_json::Value::Null),
-                    };
-                    segment_points(
-                        seg.as_ref(),
-                        &frame,
-                        img,
-                        *b,
-                        &params,
-                        cut_walls,
-                        walls.as_deref(),
-                    )
-                    .ok()
-                    .map(|c| (*i, c, fill))
+                    let (c, fill) = vseg.segment(*i, *b, decoded.get(i)?)?;
+                    Some((*i, c, fill))
                 })
                 .collect();
+            segmented.extend(checked.into_iter().map(|(i, (c, fill))| (i, c, fill)));
+            let order = |i: usize| vb.iter().position(|v| v.0 == i);
+            segmented.sort_by_key(|(i, _, _)| order(*i));
             // What depth completion did in each view (null when it was not asked to).
             let fills: HashMap<usize, serde_json::Value> =
                 segmented.iter().map(|(i, _, f)| (*i, f.clone())).collect();
@@ -573,7 +473,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

@@ -514,3 +514,76 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
         assert_trace_clean(&job);
     }
 }
+
+/// A view's candidate is checked against the chosen view before it is used
+/// (`in_views_check`): segmented, then held to the fusion's chamfer filter. With a
+/// threshold no cloud meets, every candidate view gives way to its footprint, and the trace
+/// lists each check; with a threshold every cloud meets, the candidates stay; with the check
+/// off, the candidates are used as found (and the fusion drops those views).
+#[tokio::test]
+async fn a_views_candidate_that_disagrees_with_the_chosen_view_gives_way_to_its_footprint() {
+    let w = grounder::synth::SynthParams::small(SEED).color_size.0;
+    for (threshold, check) in [(1e-12, true), (1e3, true), (1e-12, false)] {
+        let f = Fixture::start_with_config(5_000, "centernet", |c| {
+            c.agent.candidates.enabled = true;
+            c.agent.candidates.view_box = false;
+            c.agent.candidates.in_views_check = check;
+            c.agent.geometry.chamfer_threshold = threshold;
+        })
+        .await;
+        // A mark at the frame's edge, so the chosen view saw a part and the views take
+        // candidates.
+        let cands = f.candidates(0).await;
+        let cut = cands
+            .iter()
+            .position(|c| c.bbox[0] <= 0.0 || c.bbox[2] >= w as f32)
+            .expect("frame 0 has a mark at its edge");
+        f.vlm.script_push(vec![
+            analysis("whiteboard"),
+            pick_image("00000"),
+            pick_object(cut as u32),
+        ]);
+        let job = f.run_job(QUERY).await;
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        let proj = &steps(&job, "projection")[0]["outputs"];
+        assert_eq!(proj["views_take_candidates"], true, "{proj:#}");
+        let views = proj["views"].as_array().cloned().unwrap_or_default();
+        let view = |id: &serde_json::Value| {
+            views
+                .iter()
+                .find(|v| &v["image_id"] == id)
+                .cloned()
+                .expect("a checked view is an ensemble view")
+        };
+        if !check {
+            assert!(proj["candidate_check"].is_null(), "{proj:#}");
+            let taken: Vec<_> = views
+                .iter()
+                .filter(|v| v["box_from"] == "candidate")
+                .collect();
+            assert!(!taken.is_empty(), "the views take candidates: {views:#?}");
+            assert!(taken.iter().all(|v| v["kept"] == false), "{views:#?}");
+            continue;
+        }
+        let checked = proj["candidate_check"]
+            .as_array()
+            .cloned()
+            .unwrap_or_default();
+        assert!(!checked.is_empty(), "{proj:#}");
+        let passes = threshold > 1.0;
+        for c in &checked {
+            assert_eq!(c["kept"], passes, "{c:#}");
+            let v = view(&c["image_id"]);
+            if passes {
+                // The candidate stays, and the fusion keeps the view.
+                assert_eq!(v["box_from"], "candidate", "{c:#} {v:#}");
+                assert_eq!(v["box"], c["box"], "{c:#} {v:#}");
+                assert_eq!(v["kept"], true, "{c:#} {v:#}");
+            } else {
+                assert_eq!(v["box_from"], "footprint", "{c:#} {v:#}");
+                assert_eq!(v["box"], v["footprint"], "{c:#} {v:#}");
+            }
+        }
+        assert_trace_clean(&job);
+    }
+}

@@ -108,6 +108,12 @@ pub struct CandidateParams {
     /// has no depth). A view that saw the whole object needs no completing, and a
     /// class-agnostic region can hold the object together with what it stands on.
     pub in_views_partial_only: bool,
+    /// A view's candidate is segmented and compared with the chosen view (the fusion's
+    /// chamfer filter) before it is used; one that fails (a region that holds the object
+    /// together with what touches it) gives way to the footprint's box, which
+    /// `view_box` may then ask about. Off: the candidate is used, and the fusion drops the
+    /// view.
+    pub in_views_check: bool,
     /// When the chosen view saw a part of the object and no ensemble view has a detection
     /// of the class, ask the VLM for the whole object's box in the views whose box is
     /// still the part's footprint, most room around the part first (one call each; the
@@ -166,6 +172,7 @@ impl Default for CandidateParams {
             box_fallback: true,
             in_views: true,
             in_views_partial_only: true,
+            in_views_check: true,
             view_box: true,
             view_box_views: 3,
             unmeasured_retry: true,
