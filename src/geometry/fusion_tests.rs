@@ -4,8 +4,9 @@
 use nalgebra::{Matrix4, Point3, Vector3};
 
 use super::*;
-use crate::geometry::camera::{look_at_pose, transform_point};
+use crate::geometry::camera::look_at_pose;
 use crate::geometry::ensemble::{find_views, mask_points, CandidateFrame};
+use crate::geometry::test_scene::{first_hit, pixel_ray};
 use crate::geometry::{Aabb, Intrinsics};
 
 type Part = ([f64; 3], [f64; 3], u16);
@@ -32,35 +33,16 @@ fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
 /// Depth and the id of the nearest part at every pixel (0 = nothing).
 fn render(cam: &FrameCamera, parts: &[Part]) -> (DepthMap, Vec<u16>) {
     let (w, h) = cam.depth_size;
-    let m = cam.cam_to_out();
-    let o = transform_point(&m, &Point3::origin());
     let mut depth = vec![0u16; (w * h) as usize];
     let mut ids = vec![0u16; (w * h) as usize];
     for y in 0..h {
         for x in 0..w {
-            let d = transform_point(&m, &cam.color.unproject(x as f64, y as f64, 1.0)) - o;
-            let mut best = (f64::INFINITY, 0u16);
-            for (lo, hi, id) in parts {
-                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-                for k in 0..3 {
-                    if d[k].abs() < 1e-12 {
-                        if o[k] < lo[k] || o[k] > hi[k] {
-                            t1 = -1.0;
-                        }
-                        continue;
-                    }
-                    let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-                    t0 = t0.max(a.min(b));
-                    t1 = t1.min(a.max(b));
-                }
-                if t0 <= t1 && t0 > 0.0 && t0 < best.0 {
-                    best = (t0, *id);
-                }
-            }
-            if best.0 < 8.0 {
+            let (o, d) = pixel_ray(cam, f64::from(x), f64::from(y));
+            let hit = first_hit(&o, &d, parts.iter().map(|(lo, hi, _)| (lo, hi)));
+            if let Some((n, t)) = hit.filter(|&(_, t)| t < 8.0) {
                 let i = (y * w + x) as usize;
-                depth[i] = (best.0 * 1000.0).round() as u16;
-                ids[i] = best.1;
+                depth[i] = (t * 1000.0).round() as u16;
+                ids[i] = parts[n].2;
             }
         }
     }

@@ -30,7 +30,7 @@ pub(crate) fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
 
 /// The first of `boxes` (`[min, max]`) that the ray `o + t d`, t > 0, enters: its index
 /// and `t`.
-fn first_hit<'a>(
+pub(crate) fn first_hit<'a>(
     o: &Point3<f64>,
     d: &Vector3<f64>,
     boxes: impl Iterator<Item = (&'a [f64; 3], &'a [f64; 3])>,
@@ -58,7 +58,7 @@ fn first_hit<'a>(
 
 /// The ray from `cam`'s centre through colour pixel `(u, v)`, in the output frame, scaled
 /// so that its parameter is the camera depth.
-fn pixel_ray(cam: &FrameCamera, u: f64, v: f64) -> (Point3<f64>, Vector3<f64>) {
+pub(crate) fn pixel_ray(cam: &FrameCamera, u: f64, v: f64) -> (Point3<f64>, Vector3<f64>) {
     let m = cam.cam_to_out();
     let o = transform_point(&m, &Point3::origin());
     (o, transform_point(&m, &cam.color.unproject(u, v, 1.0)) - o)

@@ -180,6 +180,16 @@ async fn without_the_box_fallback_no_mark_means_not_in_this_image() {
     assert!(steps(&job, "vlm_box").is_empty(), "{job:#}");
 }
 
+/// The first mark of frame 0 that runs off the frame's left or right edge.
+async fn edge_mark(f: &Fixture) -> usize {
+    let w = grounder::synth::SynthParams::small(SEED).color_size.0 as f32;
+    f.candidates(0)
+        .await
+        .iter()
+        .position(|c| c.bbox[0] <= 0.0 || c.bbox[2] >= w)
+        .expect("frame 0 has a mark at its edge")
+}
+
 /// The chosen view saw a part of the object (its mark runs off the frame's edge) and no
 /// ensemble view has a box of its own for it (`in_views` off: every view's box is its
 /// footprint): the VLM is asked for the whole object's box in one view (`view_box_views =
@@ -202,12 +212,7 @@ async fn a_view_of_the_whole_object_gets_its_box_from_the_vlm_when_the_anchor_sa
             c.agent.candidates.view_box_views = 1;
         })
         .await;
-        // A mark of frame 0 that runs off the frame's left or right edge.
-        let cands = f.candidates(0).await;
-        let cut = cands
-            .iter()
-            .position(|c| c.bbox[0] <= 0.0 || c.bbox[2] >= w as f32)
-            .expect("frame 0 has a mark at its edge");
+        let cut = edge_mark(&f).await;
         let reply = serde_json::json!({"reasoning": "the whole board", "bbox_2d": answer});
         f.vlm.script_push(vec![
             analysis("whiteboard"),
@@ -522,7 +527,6 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
 /// off, the candidates are used as found (and the fusion drops those views).
 #[tokio::test]
 async fn a_views_candidate_that_disagrees_with_the_chosen_view_gives_way_to_its_footprint() {
-    let w = grounder::synth::SynthParams::small(SEED).color_size.0;
     for (threshold, check) in [(1e-12, true), (1e3, true), (1e-12, false)] {
         let f = Fixture::start_with_config(5_000, "centernet", |c| {
             c.agent.candidates.enabled = true;
@@ -531,13 +535,9 @@ async fn a_views_candidate_that_disagrees_with_the_chosen_view_gives_way_to_its_
             c.agent.geometry.chamfer_threshold = threshold;
         })
         .await;
-        // A mark at the frame's edge, so the chosen view saw a part and the views take
+        // A mark at the frame's edge: the chosen view saw a part, so the views take
         // candidates.
-        let cands = f.candidates(0).await;
-        let cut = cands
-            .iter()
-            .position(|c| c.bbox[0] <= 0.0 || c.bbox[2] >= w as f32)
-            .expect("frame 0 has a mark at its edge");
+        let cut = edge_mark(&f).await;
         f.vlm.script_push(vec![
             analysis("whiteboard"),
             pick_image("00000"),

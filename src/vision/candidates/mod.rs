@@ -20,7 +20,8 @@
 //!    (`group_step` + `group_per_m` per metre): a lamp's shade and the pole behind it, a
 //!    chair's back and its seat seen over a table's edge. Offered beside their members;
 //! 6. **on tops**: an object standing on a level top of its region (a box on a table of
-//!    its colour, a lamp on a nightstand), split from it by height (`tops`);
+//!    its colour, a lamp on a nightstand), split from it by height (`tops`), and each
+//!    colour of it (two pillows side by side on a bed);
 //! 7. **on walls**: wall cells joined by colour. The largest region of each wall is the
 //!    wall; the others (pictures, windows, doors, boards) are candidates.
 //!
@@ -74,7 +75,7 @@ pub struct CandidateParams {
     pub group_per_m: f64,
     /// Offer the objects that stand on a level top of their region as candidates of their
     /// own (`tops`: what rises above the top over its footprint, where the top reaches past
-    /// it on both sides along an axis of the room).
+    /// it on both sides along an axis of the room), and each colour of such an object.
     pub tops: bool,
     /// A cell is level when its surface normal is within this angle (degrees) of vertical.
     pub top_level_deg: f64,
@@ -312,9 +313,22 @@ pub fn frame_candidates(
         let eye_z = cam.centre().z;
         let angle = layout.map_or(0.0, |l| l.angle_deg);
         for r in tops::on_tops(&g, &object_regions, &object_of, eye_z, angle, p) {
-            let c = to_candidate(&g, &r, CandidateKind::OnTop, dims);
-            if fits(&c) {
-                out.push(c);
+            // What stands on one top can be several things side by side (two pillows on a
+            // bed): each of its colours is offered too, as the object regions' are.
+            let mut found = vec![r.clone()];
+            if r.len() >= 2 * p.min_cells {
+                let least = p.min_cells.max((p.min_part * r.len() as f64) as usize);
+                found.extend(
+                    colour_split(&g, &r, p.colour_tol, least, 2)
+                        .into_iter()
+                        .filter(|part| part.len() < r.len() * 9 / 10),
+                );
+            }
+            for r in &found {
+                let c = to_candidate(&g, r, CandidateKind::OnTop, dims);
+                if fits(&c) {
+                    out.push(c);
+                }
             }
         }
     }

@@ -294,3 +294,22 @@ fn a_chair_back_over_its_seat_is_not_an_object_on_it() {
     let truth = truth_box(&ids, 320, 1);
     assert!(best_iou(&cands, &truth) > 0.8, "{cands:?}");
 }
+
+#[test]
+fn two_pillows_side_by_side_on_a_bed_of_ones_colour_are_candidates_each() {
+    // A blue bed; on its top a blue pillow and a yellow one touching it. Above the top both
+    // pillows are one region; the blue one is told from the yellow by colour, and from the
+    // bed only by standing on its top.
+    let (blue, yellow) = ([40, 60, 170], [220, 200, 40]);
+    let mut parts = room();
+    parts.push(part([1.0, 2.2, 0.0], [3.0, 3.9, 0.5], blue, 1));
+    parts.push(part([1.3, 3.3, 0.5], [1.95, 3.75, 0.63], blue, 2));
+    parts.push(part([1.95, 3.3, 0.5], [2.6, 3.75, 0.63], yellow, 3));
+    let cam = camera([2.0, 0.9, 1.5], [2.0, 3.3, 0.5]);
+    let (cands, ids) = run(&cam, &parts);
+    for id in [2, 3] {
+        let truth = truth_box(&ids, 320, id);
+        let iou = best_iou(&cands, &truth);
+        assert!(iou > 0.7, "pillow {id}: {iou} against {truth:?}: {cands:?}");
+    }
+}
