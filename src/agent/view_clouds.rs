@@ -124,6 +124,9 @@ fn complete_depth(
     }
 }
 
+/// A view's segmentation and what depth completion did for it.
+pub(super) type Segmented = (ViewCloud, serde_json::Value);
+
 /// What segments the ensemble views of one job, the same way for every view: depth
 /// completion with `room` (when given), then [`segment_points`].
 #[derive(Clone)]
@@ -139,12 +142,7 @@ pub(super) struct ViewSegmenter {
 impl ViewSegmenter {
     /// View `i`'s box `b` segmented in `image`, and what depth completion did (null when it
     /// was not asked to); None when the segmenter failed.
-    pub fn segment(
-        &self,
-        i: usize,
-        b: [f32; 4],
-        image: &RgbImage,
-    ) -> Option<(ViewCloud, serde_json::Value)> {
+    pub fn segment(&self, i: usize, b: [f32; 4], image: &RgbImage) -> Option<Segmented> {
         let (frame, fill) = match &self.room {
             Some(room) => complete_depth(
                 self.scene.frames[i].clone(),
@@ -188,7 +186,7 @@ pub(super) fn check_candidates(
     Vec<serde_json::Value>,
 ) {
     use rayon::prelude::*;
-    let segmented: Vec<(usize, [f32; 4], Option<(ViewCloud, serde_json::Value)>)> = view_boxes
+    let segmented: Vec<(usize, [f32; 4], Option<Segmented>)> = view_boxes
         .par_iter()
         .filter(|(_, _, from)| *from == BoxFrom::Candidate)
         .filter_map(|&(i, b, _)| {
