@@ -258,6 +258,7 @@ pub async fn run(
         walls: walls.clone(),
     };
     // A view's candidate must agree with the chosen view before it is used.
+    let tc = Instant::now();
     let has_candidate = view_boxes.iter().any(|v| v.2 == BoxFrom::Candidate);
     let (checked, candidate_check, decoded) = if has_candidate && cp.in_views_check {
         let (vs, ap, views_c) = (vseg.clone(), anchor_pts.clone(), views.clone());
@@ -273,6 +274,7 @@ pub async fn run(
     } else {
         (HashMap::new(), serde_json::Value::Null, decoded)
     };
+    let check_ms = ms(tc);
     let (anchor_idx, partial) = (choice.frame_idx, anchor_partial.partial);
     let asker = super::view_box::Asker {
         g,
@@ -327,15 +329,20 @@ pub async fn run(
             use rayon::prelude::*;
             let ts = Instant::now();
             // The views segmented while their candidates were checked are not redone.
+            let done = |i: &usize, b: &[f32; 4]| checked.get(i).is_some_and(|(cb, _)| cb == b);
             let mut segmented: Vec<(usize, ViewCloud, serde_json::Value)> = vb
                 .par_iter()
-                .filter(|(i, _, _)| !checked.contains_key(i))
+                .filter(|(i, b, _)| !done(i, b))
                 .filter_map(|(i, b, _)| {
                     let (c, fill) = vseg.segment(*i, *b, decoded.get(i)?)?;
                     Some((*i, c, fill))
                 })
                 .collect();
-            segmented.extend(checked.into_iter().map(|(i, (c, fill))| (i, c, fill)));
+            let mut checked = checked;
+            segmented.extend(vb.iter().filter_map(|(i, b, _)| match checked.remove(i) {
+                Some((cb, (c, fill))) if cb == *b => Some((*i, c, fill)),
+                _ => None,
+            }));
             let order = |i: usize| vb.iter().position(|v| v.0 == i);
             segmented.sort_by_key(|(i, _, _)| order(*i));
             // What depth completion did in each view (null when it was not asked to).
@@ -474,7 +481,7 @@ pub async fn run(
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
         json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
-               "timings_ms": {"find_views": find_ms, "decode": decode_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
+               "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )
     .await;

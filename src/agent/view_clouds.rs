@@ -127,6 +127,10 @@ fn complete_depth(
 /// A view's segmentation and what depth completion did for it.
 pub(super) type Segmented = (ViewCloud, serde_json::Value);
 
+/// The views whose candidate passed [`check_candidates`]: the box checked and its
+/// segmentation, by view index.
+pub(super) type Checked = HashMap<usize, ([f32; 4], Segmented)>;
+
 /// What segments the ensemble views of one job, the same way for every view: depth
 /// completion with `room` (when given), then [`segment_points`].
 #[derive(Clone)]
@@ -181,10 +185,7 @@ pub(super) fn check_candidates(
     views: &[ViewCandidate],
     view_boxes: &mut [(usize, [f32; 4], BoxFrom)],
     decoded: &HashMap<usize, Arc<RgbImage>>,
-) -> (
-    HashMap<usize, (ViewCloud, serde_json::Value)>,
-    Vec<serde_json::Value>,
-) {
+) -> (Checked, Vec<serde_json::Value>) {
     use rayon::prelude::*;
     let segmented: Vec<(usize, [f32; 4], Option<Segmented>)> = view_boxes
         .par_iter()
@@ -202,16 +203,16 @@ pub(super) fn check_candidates(
     let mut kept = HashMap::new();
     let mut trace = Vec::new();
     for ((i, b, cloud), d) in segmented.into_iter().zip(decisions) {
-        trace.push(
-            json!({"image_id": format!("{i:05}"), "box": b, "chamfer": d.chamfer, "kept": d.kept}),
-        );
+        let (image_id, chamfer) = (format!("{i:05}"), d.chamfer);
+        trace.push(json!({"image_id": image_id, "box": b, "chamfer": chamfer, "kept": d.kept}));
         match cloud {
             Some(c) if d.kept => {
-                kept.insert(i, c);
+                kept.insert(i, (b, c));
             }
             _ => {
                 let footprint = views.iter().find(|v| v.index == i).map(|v| v.bbox);
-                if let (Some(f), Some(vb)) = (footprint, view_boxes.iter_mut().find(|v| v.0 == i)) {
+                let entry = view_boxes.iter_mut().find(|v| v.0 == i);
+                if let (Some(f), Some(vb)) = (footprint, entry) {
                     *vb = (i, f, BoxFrom::Footprint);
                 }
             }
