@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 
+use super::candidate_cache;
 use super::preselect::{same_class, Preselection};
 use super::VlmGrounder;
 use crate::geometry::ensemble::ViewCandidate;
@@ -85,21 +86,6 @@ pub fn support_context<P: Copy>(
     context
 }
 
-/// Every frame's cached candidates, read once per job (one query for all the views), when
-/// candidates are on for the views; frames indexed without them are absent.
-async fn view_candidates(
-    g: &VlmGrounder,
-    ctx: &JobContext,
-) -> Result<BTreeMap<usize, Vec<Detection>>, JobFailure> {
-    if !g.params.candidates.enabled || !g.params.candidates.in_views {
-        return Ok(BTreeMap::new());
-    }
-    ctx.store
-        .scene_candidates(&ctx.scene.id)
-        .await
-        .map_err(|e| JobFailure::new("storage_error", e.to_string()))
-}
-
 /// The view's cached candidate holding the reprojected anchor `pixels` ([`pick_detection`]).
 fn view_candidate(
     cands: &BTreeMap<usize, Vec<Detection>>,
@@ -111,14 +97,15 @@ fn view_candidate(
 }
 
 /// Each view's box and where it came from, in the order of `views`; `take_candidates`:
-/// the views' class-agnostic candidates may be used.
+/// the views' class-agnostic candidates may be used. Also the views whose candidates the
+/// index lacked and were computed now (`candidate_cache`).
 pub async fn boxes(
     g: &VlmGrounder,
     ctx: &JobContext,
     pre: &Preselection,
     views: &[ViewCandidate],
     take_candidates: bool,
-) -> Result<Vec<(usize, [f32; 4], BoxFrom)>, JobFailure> {
+) -> Result<(Vec<(usize, [f32; 4], BoxFrom)>, Vec<usize>), JobFailure> {
     let scene = &ctx.scene;
     // A box in each view: the cached detection of the class that best overlaps the footprint.
     let dets = match &pre.detector_class {
@@ -129,11 +116,10 @@ pub async fn boxes(
             .map_err(|e| JobFailure::new("storage_error", e.to_string()))?,
         None => Default::default(),
     };
-    // Read on the first view without a detection of the class, then shared by the others.
-    let mut cands: Option<BTreeMap<usize, Vec<Detection>>> = None;
-    let mut view_boxes = Vec::with_capacity(views.len());
-    for v in views {
-        let best = pre.detector_class.as_ref().and_then(|c| {
+    let best: Vec<Option<[f32; 4]>> = views
+        .iter()
+        .map(|v| {
+            let c = pre.detector_class.as_ref()?;
             let boxes: Vec<[f32; 4]> = dets
                 .get(&v.index)?
                 .iter()
@@ -141,29 +127,38 @@ pub async fn boxes(
                 .map(|d| d.bbox)
                 .collect();
             pick_detection(&boxes, &v.pixels)
-        });
-        // Else the view's class-agnostic candidates, by the same rule: the object the
-        // anchor's points fall on, whole, where the anchor saw only a part of it (a chair's
-        // back over a table's edge). Without either, the footprint's own box.
-        let (b, from) = match best {
-            Some(b) => (b, BoxFrom::Detection),
-            None if !take_candidates => (v.bbox, BoxFrom::Footprint),
-            None => {
-                if cands.is_none() {
-                    cands = Some(view_candidates(g, ctx).await?);
-                }
-                match cands
-                    .as_ref()
-                    .and_then(|c| view_candidate(c, v.index, &v.pixels))
-                {
-                    Some(b) => (b, BoxFrom::Candidate),
-                    None => (v.bbox, BoxFrom::Footprint),
-                }
+        })
+        .collect();
+    // Else the view's class-agnostic candidates, by the same rule: the object the anchor's
+    // points fall on, whole, where the anchor saw only a part of it (a chair's back over a
+    // table's edge). Read for the views without a detection, in one query.
+    let wanted: Vec<usize> = views
+        .iter()
+        .zip(&best)
+        .filter(|(_, b)| b.is_none())
+        .map(|(v, _)| v.index)
+        .collect();
+    let found = if take_candidates && !wanted.is_empty() {
+        Some(candidate_cache::of_frames(g, ctx, &wanted, None).await?)
+    } else {
+        None
+    };
+    // Without either, the footprint's own box.
+    let view_boxes = views
+        .iter()
+        .zip(best)
+        .map(|(v, best)| {
+            let cand = || view_candidate(&found.as_ref()?.by_frame, v.index, &v.pixels);
+            match best {
+                Some(b) => (v.index, b, BoxFrom::Detection),
+                None => match cand() {
+                    Some(b) => (v.index, b, BoxFrom::Candidate),
+                    None => (v.index, v.bbox, BoxFrom::Footprint),
+                },
             }
-        };
-        view_boxes.push((v.index, b, from));
-    }
-    Ok(view_boxes)
+        })
+        .collect();
+    Ok((view_boxes, found.map(|f| f.computed).unwrap_or_default()))
 }
 
 #[cfg(test)]

@@ -2,59 +2,38 @@
 //! at indexing from the scan itself (`vision::candidates`), are drawn as numbered regions
 //! and the VLM picks the one the query describes, with the same feedback rules as instance
 //! selection. When the VLM says no region is the target, it is asked for the box itself
-//! (`box_fallback`). A scene indexed before candidates existed gets them computed here.
+//! (`box_fallback`). A frame without current cached candidates gets them computed here
+//! (`candidate_cache`).
 
 use image::RgbImage;
 use serde_json::json;
 use std::time::Instant;
 
+use super::candidate_cache;
 use super::conversation::Conversation;
 use super::instance::{self, SelectKind};
 use super::proposal::{not_here, BoxSource, Outcome};
 use super::{step, vlm_box, VlmGrounder};
 use crate::jobs::{JobContext, JobFailure};
-use crate::vision::candidates::{box_iou, frame_candidates};
+use crate::vision::candidates::box_iou;
 use crate::vision::Detection;
 use crate::vlm::json::QueryAnalysis;
 use crate::vlm::CallBudget;
 
-/// The candidates of frame `idx`: from the index, else computed now.
+/// The candidates of frame `idx`: from the index, else computed now (and cached).
 async fn candidates_of(
     g: &VlmGrounder,
     ctx: &JobContext,
     idx: usize,
     image: &RgbImage,
 ) -> Result<(Vec<Detection>, &'static str), JobFailure> {
-    let cached = ctx
-        .store
-        .frame_candidates(&ctx.scene.id, idx)
-        .await
-        .map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
-    if let Some(c) = cached {
-        return Ok((c, "index"));
-    }
-    let (scene, img) = (ctx.scene.clone(), image.clone());
-    let (cp, lp) = (
-        g.params.candidates.clone(),
-        g.params.geometry.layout.clone(),
-    );
-    let found = tokio::task::spawn_blocking(move || {
-        // The room is estimated once per loaded scene (shared with projection).
-        let room = lp.enabled.then(|| scene.room_layout(&lp)).flatten();
-        let f = &scene.frames[idx];
-        frame_candidates(&f.camera, &f.depth, &img, room.as_deref(), &lp, &cp)
-    })
-    .await
-    .map_err(|e| JobFailure::new("internal", format!("candidate task failed: {e}")))?;
-    let dets = found
-        .into_iter()
-        .map(|c| Detection {
-            label: c.kind.label().to_string(),
-            score: 1.0,
-            bbox: c.bbox,
-        })
-        .collect();
-    Ok((dets, "computed"))
+    let mut found = candidate_cache::of_frames(g, ctx, &[idx], Some((idx, image))).await?;
+    let source = if found.computed.is_empty() {
+        "index"
+    } else {
+        "computed"
+    };
+    Ok((found.by_frame.remove(&idx).unwrap_or_default(), source))
 }
 
 /// Offer the candidates of image `idx` as marks, after the detector's boxes `dets` (of the

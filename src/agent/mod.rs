@@ -4,6 +4,7 @@
 //! Every stage appends a step `{step, inputs, outputs, ms}` to the job's trace.
 
 mod bottom;
+mod candidate_cache;
 pub mod conversation;
 pub mod ensemble_boxes;
 pub mod exports;

@@ -238,8 +238,9 @@ pub async fn run(
     );
     let views_take_candidates =
         cp.enabled && cp.in_views && (!cp.in_views_partial_only || anchor_partial.partial);
-    let mut view_boxes =
+    let (mut view_boxes, computed) =
         super::ensemble_boxes::boxes(g, ctx, pre, &views, views_take_candidates).await?;
+    let candidates_computed: Vec<String> = computed.iter().map(|i| format!("{i:05}")).collect();
     let idxs: Vec<usize> = view_boxes.iter().map(|v| v.0).collect();
     let td = Instant::now();
     let decoded: HashMap<usize, Arc<RgbImage>> = if idxs.is_empty() {
@@ -480,7 +481,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

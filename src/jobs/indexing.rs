@@ -386,6 +386,10 @@ async fn index_scene(
         }
         _ => None,
     };
+    let cache_key = candidates
+        .as_ref()
+        .map(|c| c.params.cache_key(&c.layout))
+        .unwrap_or_default();
     let stopping = jobs.stopping();
     for frame in usable.into_iter().filter(|f| f.idx >= from) {
         if stopping.is_cancelled() {
@@ -403,7 +407,7 @@ async fn index_scene(
         })
         .await??;
         if let Some(c) = &index.candidates {
-            store.put_candidates(scene_id, idx, c).await?;
+            store.put_candidates(scene_id, &cache_key, idx, c).await?;
         }
         store
             .put_detections(scene_id, key, idx, &index.detections)

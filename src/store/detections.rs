@@ -7,8 +7,9 @@ use super::scenes::HIDDEN_STATES;
 use super::{Store, StoreError};
 use crate::vision::Detection;
 
-/// Detector key under which class-agnostic candidates are cached.
-pub const CANDIDATES_KEY: &str = "candidates";
+/// Detector keys under which class-agnostic candidates are cached: the unversioned key of
+/// old indexes, and each version's (`vision::candidates::CandidateParams::cache_key`).
+const ANY_CANDIDATES: &str = "(detector = 'candidates' OR detector LIKE 'candidates/%')";
 /// Label of the row that marks a frame indexed with candidates where none were found.
 pub(crate) const CANDIDATES_NONE: &str = "(none)";
 
@@ -66,11 +67,13 @@ impl Store {
         Ok(())
     }
 
-    /// Store one frame's class-agnostic candidates (cached like detections, under
-    /// [`CANDIDATES_KEY`]; indexing progress is counted by [`Self::put_detections`]).
+    /// Store one frame's class-agnostic candidates under `key` (cached like detections;
+    /// indexing progress is counted by [`Self::put_detections`]), replacing what the frame
+    /// had cached under any other candidates key.
     pub async fn put_candidates(
         &self,
         scene_id: &str,
+        key: &str,
         frame_idx: usize,
         cands: &[Detection],
     ) -> Result<(), StoreError> {
@@ -81,29 +84,29 @@ impl Store {
         }];
         let rows = if cands.is_empty() { &none[..] } else { cands };
         let mut tx = self.pool.begin().await?;
-        replace_frame_rows(
-            &mut tx,
-            self.backend,
-            scene_id,
-            CANDIDATES_KEY,
-            frame_idx,
-            rows,
-        )
+        sqlx::query(&self.sql(format!(
+            "DELETE FROM detections WHERE scene_id = ? AND frame_idx = ? AND {ANY_CANDIDATES}"
+        )))
+        .bind(scene_id)
+        .bind(frame_idx as i64)
+        .execute(&mut *tx)
         .await?;
+        replace_frame_rows(&mut tx, self.backend, scene_id, key, frame_idx, rows).await?;
         tx.commit().await?;
         Ok(())
     }
 
-    /// One frame's cached candidates, largest first; `None` when the scene was indexed
-    /// without them.
+    /// One frame's candidates cached under `key`, largest first; `None` when none were
+    /// (indexed without candidates, or with another version or settings).
     pub async fn frame_candidates(
         &self,
         scene_id: &str,
+        key: &str,
         frame_idx: usize,
     ) -> Result<Option<Vec<Detection>>, StoreError> {
         let rows = sqlx::query(&self.sql("SELECT label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? ORDER BY rowid"))
             .bind(scene_id)
-            .bind(CANDIDATES_KEY)
+            .bind(key)
             .bind(frame_idx as i64)
             .fetch_all(&self.pool)
             .await?;
@@ -124,7 +127,7 @@ impl Store {
             // A frame indexed with candidates and none found holds one marker row.
             let marked: Option<i64> = sqlx::query_scalar(&self.sql("SELECT 1 FROM detections WHERE scene_id = ? AND detector = ? AND frame_idx = ? AND label = ? LIMIT 1"))
                 .bind(scene_id)
-                .bind(CANDIDATES_KEY)
+                .bind(key)
                 .bind(frame_idx as i64)
                 .bind(CANDIDATES_NONE)
                 .fetch_optional(&self.pool)
@@ -134,16 +137,17 @@ impl Store {
         Ok(Some(out))
     }
 
-    /// Every frame's cached candidates in one query, each frame's largest first (as
-    /// [`Self::frame_candidates`]); frames indexed with candidates and none found map to an
-    /// empty list, frames indexed without them are absent.
+    /// Every frame's candidates cached under `key`, in one query, each frame's largest
+    /// first (as [`Self::frame_candidates`]); frames indexed with candidates and none found
+    /// map to an empty list, frames without them under `key` are absent.
     pub async fn scene_candidates(
         &self,
         scene_id: &str,
+        key: &str,
     ) -> Result<BTreeMap<usize, Vec<Detection>>, StoreError> {
         let rows = sqlx::query(&self.sql("SELECT frame_idx, label, score, x1, y1, x2, y2 FROM detections WHERE scene_id = ? AND detector = ? ORDER BY frame_idx, rowid"))
             .bind(scene_id)
-            .bind(CANDIDATES_KEY)
+            .bind(key)
             .fetch_all(&self.pool)
             .await?;
         let mut out: BTreeMap<usize, Vec<Detection>> = BTreeMap::new();
@@ -164,7 +168,8 @@ impl Store {
         Ok(out)
     }
 
-    /// Reset indexing progress (before (re-)indexing with `detector`).
+    /// Reset indexing progress (before (re-)indexing with `detector`), dropping the
+    /// detector's cached boxes and every cached candidate.
     pub async fn reset_index(
         &self,
         scene_id: &str,
@@ -172,12 +177,13 @@ impl Store {
         total: usize,
     ) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query(&self.sql("DELETE FROM detections WHERE scene_id = ? AND detector IN (?, ?)"))
-            .bind(scene_id)
-            .bind(detector)
-            .bind(CANDIDATES_KEY)
-            .execute(&mut *tx)
-            .await?;
+        sqlx::query(&self.sql(format!(
+            "DELETE FROM detections WHERE scene_id = ? AND (detector = ? OR {ANY_CANDIDATES})"
+        )))
+        .bind(scene_id)
+        .bind(detector)
+        .execute(&mut *tx)
+        .await?;
         sqlx::query(&self.sql(format!("UPDATE scenes SET status = 'indexing', index_detector = ?, index_done = 0, index_total = ?, error = NULL WHERE id = ? AND status NOT IN {HIDDEN_STATES}")))
             .bind(detector)
             .bind(total as i64)

@@ -20,9 +20,6 @@ use crate::scene::{FrameData, SceneData};
 /// mid-delete can be finished at start-up (see `store::lifecycle`).
 pub(crate) const HIDDEN_STATES: &str = "('importing', 'deleting')";
 
-/// Detector key under which class-agnostic candidates are cached (`store::detections`).
-pub use super::detections::CANDIDATES_KEY;
-
 /// A scene as listed over the API.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct SceneRecord {

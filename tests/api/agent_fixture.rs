@@ -39,6 +39,8 @@ pub struct Fixture {
     pub store: Store,
     /// Cached detections by frame index (what pre-selection reads).
     pub dets: BTreeMap<usize, Vec<Detection>>,
+    /// The key the service caches its class-agnostic candidates under.
+    pub candidates_key: String,
     _dir: tempfile::TempDir,
 }
 
@@ -60,7 +62,7 @@ impl Fixture {
     /// The cached class-agnostic candidates of frame `idx` (none when it has none).
     pub async fn candidates(&self, idx: usize) -> Vec<Detection> {
         self.store
-            .frame_candidates(&self.scene_id, idx)
+            .frame_candidates(&self.scene_id, &self.candidates_key, idx)
             .await
             .unwrap()
             .unwrap_or_default()
@@ -162,6 +164,7 @@ impl Fixture {
         tweak(&mut vc);
         cfg.vlm = Some(vc);
         tweak_cfg(&mut cfg);
+        let candidates_key = cfg.agent.candidates.cache_key(&cfg.agent.geometry.layout);
         let app = TestApp::spawn_with(cfg).await;
         let r = app.upload(tar, "application/x-tar").await;
         assert_eq!(r.status().as_u16(), 201);
@@ -192,6 +195,7 @@ impl Fixture {
             scene_id,
             store,
             dets,
+            candidates_key,
             _dir: dir,
         }
     }

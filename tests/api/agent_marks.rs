@@ -78,10 +78,18 @@ async fn ensemble_views_take_the_candidate_that_holds_the_object() {
         assert!(!views.is_empty(), "{:#}", proj[0]);
         let mut from_candidates = 0;
         // The whole scene's candidates in one read equal the per-frame reads.
-        let all = f.store.scene_candidates(&f.scene_id).await.unwrap();
+        let all = f
+            .store
+            .scene_candidates(&f.scene_id, &f.candidates_key)
+            .await
+            .unwrap();
         assert!(!all.is_empty());
         for (idx, list) in &all {
-            let one = f.store.frame_candidates(&f.scene_id, *idx).await.unwrap();
+            let one = f
+                .store
+                .frame_candidates(&f.scene_id, &f.candidates_key, *idx)
+                .await
+                .unwrap();
             assert_eq!(one.as_ref(), Some(list), "frame {idx}");
         }
         for v in &views {

@@ -93,6 +93,7 @@ async fn candidates_after_upload(vars: &[(&str, &str)]) -> usize {
     .expect("valid configuration");
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.agent = loaded.agent;
+    let key = cfg.agent.candidates.cache_key(&cfg.agent.geometry.layout);
     cfg.detector = "oracle".into();
     let app = TestApp::spawn_with(cfg).await;
     let (tar, _) = crate::agent_fixture::scene_tar();
@@ -106,10 +107,7 @@ async fn candidates_after_upload(vars: &[(&str, &str)]) -> usize {
         panic!("not indexed: {s}");
     }
     let store = Store::open(dir.path()).await.unwrap();
-    let cands = store
-        .detections(&id, grounder::store::scenes::CANDIDATES_KEY)
-        .await
-        .unwrap();
+    let cands = store.detections(&id, &key).await.unwrap();
     cands.values().map(Vec::len).sum()
 }
 

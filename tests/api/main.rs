@@ -37,6 +37,7 @@ mod viewer;
 mod warm_points;
 mod webhooks;
 
+mod agent_candidate_cache;
 mod agent_fixture;
 mod agent_marks;
 mod agent_paths;

@@ -186,6 +186,54 @@ impl Default for CandidateParams {
     }
 }
 
+/// Version of what [`frame_candidates`] computes from the same frame and settings. Raise it
+/// with every change to its output: cached candidates of another version are not read
+/// (they are computed again where a job needs them, and replaced at the next indexing).
+pub const ALGORITHM_VERSION: u32 = 2;
+
+/// Settings of [`CandidateParams`] that decide how the candidates are used, not which are
+/// found: changing them keeps the cache.
+const USE_ONLY: [&str; 14] = [
+    "enabled",
+    "beside_detections",
+    "box_fallback",
+    "in_views",
+    "in_views_partial_only",
+    "in_views_check",
+    "view_box",
+    "view_box_views",
+    "unmeasured_retry",
+    "unmeasured_fraction",
+    "nearer_frames",
+    "nearer_share",
+    "nearer_max",
+    "partial",
+];
+
+impl CandidateParams {
+    /// The key the candidates found with these settings (and the room found with `layout`)
+    /// are cached under: `candidates/v{ALGORITHM_VERSION}/` and a digest of every setting
+    /// that changes what is found. A cache written by another version or other settings
+    /// has another key, so it is never read as this one.
+    pub fn cache_key(&self, layout: &LayoutParams) -> String {
+        use sha2::{Digest, Sha256};
+        let mut own = serde_json::to_value(self).unwrap_or_default();
+        if let Some(m) = own.as_object_mut() {
+            for k in USE_ONLY {
+                m.remove(k);
+            }
+        }
+        let both = serde_json::json!({ "candidates": own, "layout": layout });
+        // Fields serialise in a fixed order, so the same settings give the same text.
+        let digest = Sha256::digest(both.to_string().as_bytes());
+        let hex: String = digest.iter().take(6).map(|b| format!("{b:02x}")).collect();
+        format!("{CACHE_PREFIX}/v{ALGORITHM_VERSION}/{hex}")
+    }
+}
+
+/// Prefix of every candidates cache key (before versions: the key itself).
+pub const CACHE_PREFIX: &str = "candidates";
+
 /// How a candidate was found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]

@@ -313,3 +313,50 @@ fn two_pillows_side_by_side_on_a_bed_of_ones_colour_are_candidates_each() {
         assert!(iou > 0.7, "pillow {id}: {iou} against {truth:?}: {cands:?}");
     }
 }
+
+#[test]
+fn the_cache_key_changes_with_what_is_found_and_only_with_that() {
+    let (p, lp) = (CandidateParams::default(), LayoutParams::default());
+    let key = p.cache_key(&lp);
+    assert!(
+        key.starts_with(&format!("{CACHE_PREFIX}/v{ALGORITHM_VERSION}/")),
+        "{key}"
+    );
+    assert_eq!(key, p.clone().cache_key(&lp.clone()), "the same settings");
+    // Settings that change which candidates are found change the key...
+    let finer = CandidateParams {
+        cells_across: p.cells_across * 2,
+        ..p.clone()
+    };
+    let no_tops = CandidateParams {
+        tops: !p.tops,
+        ..p.clone()
+    };
+    let coarse_room = LayoutParams {
+        bin: lp.bin * 2.0,
+        ..lp.clone()
+    };
+    for (what, other) in [
+        ("cells_across", finer.cache_key(&lp)),
+        ("tops", no_tops.cache_key(&lp)),
+        ("layout bin", p.cache_key(&coarse_room)),
+    ] {
+        assert_ne!(key, other, "{what}");
+    }
+    // ...settings of their use do not: toggling them keeps the cache.
+    let used_otherwise = CandidateParams {
+        enabled: !p.enabled,
+        in_views: !p.in_views,
+        in_views_check: !p.in_views_check,
+        box_fallback: !p.box_fallback,
+        view_box_views: p.view_box_views + 1,
+        nearer_share: p.nearer_share / 2.0,
+        ..p.clone()
+    };
+    assert_eq!(key, used_otherwise.cache_key(&lp));
+    // Every name left out of the digest is a setting (a misspelt one would leave it in).
+    let fields = serde_json::to_value(&p).unwrap();
+    for k in USE_ONLY {
+        assert!(fields.get(k).is_some(), "{k} is not a setting");
+    }
+}
