@@ -262,10 +262,11 @@ pub async fn run(
     let tc = Instant::now();
     let has_candidate = view_boxes.iter().any(|v| v.2 == BoxFrom::Candidate);
     let (checked, candidate_check, decoded) = if has_candidate && cp.in_views_check {
-        let (vs, ap, views_c) = (vseg.clone(), anchor_pts.clone(), views.clone());
+        let footprints: Vec<(usize, [f32; 4])> = views.iter().map(|v| (v.index, v.bbox)).collect();
+        let (vs, ap) = (vseg.clone(), anchor_pts.clone());
         let mut vbs = view_boxes.clone();
         let (checked, trace, vbs, decoded) = tokio::task::spawn_blocking(move || {
-            let (checked, trace) = check_candidates(&vs, &ap, &views_c, &mut vbs, &decoded);
+            let (checked, trace) = check_candidates(&vs, &ap, &footprints, &mut vbs, &decoded);
             (checked, trace, vbs, decoded)
         })
         .await
@@ -303,12 +304,7 @@ pub async fn run(
     let flat = g.params.geometry.support.is_flat(target_class);
     let pose = scene.frames[choice.frame_idx].camera.cam_to_out();
     let eye = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let (params, sc, vb, room) = (
-        g.params.geometry.clone(),
-        scene.clone(),
-        view_boxes.clone(),
-        layout,
-    );
+    let (sc, vb, room) = (scene.clone(), view_boxes.clone(), layout);
     let anchor_image = choice.image.clone();
     let trace = ctx.trace.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
@@ -328,6 +324,7 @@ pub async fn run(
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
+            let params = &vseg.params;
             let ts = Instant::now();
             // The views segmented while their candidates were checked are not redone.
             let done = |i: &usize, b: &[f32; 4]| checked.get(i).is_some_and(|(cb, _)| cb == b);
@@ -389,7 +386,7 @@ pub async fn run(
                 fusion,
                 votes,
                 anchor_kept,
-            } = fuse_segmented(anchor_view, &views, &frames, &params);
+            } = fuse_segmented(anchor_view, &views, &frames, params);
             let votes = json!(votes);
             let fuse_ms = ms(tf);
             let tsup = Instant::now();
@@ -405,7 +402,7 @@ pub async fn run(
             let anchor_kept: &[Point3<f64>] = &anchor_kept;
             let bulk = median_point(anchor_kept).unwrap_or_default();
             let support = fusion.aabb.map(|b| {
-                let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, &params);
+                let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, params);
                 let bottom_moved = moved.iter().any(|m| m.axis == "z" && m.side == "min");
                 let (b, hidden, reach) = if down && params.support.enabled && !bottom_moved {
                     let v = super::bottom::BottomViews {
@@ -415,7 +412,7 @@ pub async fn run(
                         boxes: &vb,
                         kept: &kept,
                     };
-                    super::bottom::complete(&b, &v, floor, &params)
+                    super::bottom::complete(&b, &v, floor, params)
                 } else {
                     (b, None, None)
                 };
@@ -427,7 +424,7 @@ pub async fn run(
                         room.as_deref(),
                         eye,
                         flat_depth,
-                        &params,
+                        params,
                     )
                 } else {
                     (b, Vec::new())
@@ -449,7 +446,7 @@ pub async fn run(
             // the exports are encoded and written.
             let (exports, single) = rayon::join(
                 || exports::write(&trace, &mask_files, &fusion.kept, &af.camera, &anchor_image),
-                || single_view_box(&anchor_pts, &params),
+                || single_view_box(&anchor_pts, params),
             );
             (
                 fusion,

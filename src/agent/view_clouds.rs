@@ -11,7 +11,7 @@ use nalgebra::Point3;
 use serde_json::json;
 
 use super::ensemble_boxes::BoxFrom;
-use crate::geometry::ensemble::{chamfer_decisions, mask_points, ViewCandidate};
+use crate::geometry::ensemble::{chamfer_decisions, mask_points};
 use crate::geometry::export::point_colours;
 use crate::geometry::support::context_points;
 use crate::geometry::{
@@ -182,7 +182,7 @@ impl ViewSegmenter {
 pub(super) fn check_candidates(
     vs: &ViewSegmenter,
     anchor: &[Point3<f64>],
-    views: &[ViewCandidate],
+    footprints: &[(usize, [f32; 4])],
     view_boxes: &mut [(usize, [f32; 4], BoxFrom)],
     decoded: &HashMap<usize, Arc<RgbImage>>,
 ) -> (Checked, Vec<serde_json::Value>) {
@@ -210,7 +210,7 @@ pub(super) fn check_candidates(
                 kept.insert(i, (b, c));
             }
             _ => {
-                let footprint = views.iter().find(|v| v.index == i).map(|v| v.bbox);
+                let footprint = footprints.iter().find(|v| v.0 == i).map(|v| v.1);
                 let entry = view_boxes.iter_mut().find(|v| v.0 == i);
                 if let (Some(f), Some(vb)) = (footprint, entry) {
                     *vb = (i, f, BoxFrom::Footprint);

@@ -363,7 +363,7 @@ pub fn frame_candidates(
         for r in tops::on_tops(&g, &object_regions, &object_of, eye_z, angle, p) {
             // What stands on one top can be several things side by side (two pillows on a
             // bed): each of its colours is offered too, as the object regions' are.
-            let mut found = vec![r.clone()];
+            let mut found = Vec::new();
             if r.len() >= 2 * p.min_cells {
                 let least = p.min_cells.max((p.min_part * r.len() as f64) as usize);
                 found.extend(
@@ -372,6 +372,7 @@ pub fn frame_candidates(
                         .filter(|part| part.len() < r.len() * 9 / 10),
                 );
             }
+            found.insert(0, r);
             for r in &found {
                 let c = to_candidate(&g, r, CandidateKind::OnTop, dims);
                 if fits(&c) {

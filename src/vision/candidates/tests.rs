@@ -3,9 +3,9 @@
 
 use super::*;
 use crate::geometry::camera::look_at_pose;
-use crate::geometry::camera::transform_point;
+use crate::geometry::test_scene::{first_hit, pixel_ray};
 use crate::geometry::Intrinsics;
-use nalgebra::{Matrix4, Point3, Vector3};
+use nalgebra::{Matrix4, Vector3};
 
 /// A box with a colour and an instance id (0 = room structure).
 struct Part {
@@ -67,34 +67,14 @@ fn camera(eye: [f64; 3], target: [f64; 3]) -> FrameCamera {
 /// Ray-cast depth (mm), colour and instance ids of `parts` (colour and depth share K).
 fn render(cam: &FrameCamera, parts: &[Part]) -> (DepthMap, RgbImage, Vec<u16>) {
     let (w, h) = (cam.color.width, cam.color.height);
-    let m = cam.cam_to_out();
-    let o = transform_point(&m, &Point3::origin());
     let mut depth = vec![0u16; (w * h) as usize];
     let mut ids = vec![0u16; (w * h) as usize];
     let mut img = RgbImage::new(w, h);
     for y in 0..h {
         for x in 0..w {
-            let d = transform_point(&m, &cam.color.unproject(f64::from(x), f64::from(y), 1.0)) - o;
-            let mut best: Option<(f64, &Part)> = None;
-            for p in parts {
-                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-                for k in 0..3 {
-                    if d[k].abs() < 1e-12 {
-                        if o[k] < p.lo[k] || o[k] > p.hi[k] {
-                            t1 = -1.0;
-                        }
-                        continue;
-                    }
-                    let (a, b) = ((p.lo[k] - o[k]) / d[k], (p.hi[k] - o[k]) / d[k]);
-                    t0 = t0.max(a.min(b));
-                    t1 = t1.min(a.max(b));
-                }
-                if t0 <= t1 && t0 > 0.0 && best.is_none_or(|(bt, _)| t0 < bt) {
-                    best = Some((t0, p));
-                }
-            }
-            if let Some((t, p)) = best {
-                let i = (y * w + x) as usize;
+            let (o, d) = pixel_ray(cam, f64::from(x), f64::from(y));
+            if let Some((n, t)) = first_hit(&o, &d, parts.iter().map(|p| (&p.lo, &p.hi))) {
+                let (i, p) = ((y * w + x) as usize, &parts[n]);
                 depth[i] = (t * 1000.0).round() as u16;
                 ids[i] = p.id;
                 img.put_pixel(x, y, image::Rgb(p.rgb));
