@@ -2,7 +2,6 @@
 //! read as this one's: the frames a job needs get theirs found again, and cached.
 
 use crate::agent_fixture::*;
-use crate::agent_paths::QUERY;
 use grounder::vision::Detection;
 
 /// The boxes of a trace's candidate list.
@@ -42,17 +41,7 @@ async fn candidates_cached_under_an_older_key_are_found_again_not_read() {
     }
     assert!(f.store.scene_candidates(id, key).await.unwrap().is_empty());
 
-    let run = || async {
-        f.vlm.script_push(vec![
-            analysis("whiteboard"),
-            pick_image("00000"),
-            pick_object(0),
-        ]);
-        let job = f.run_job(QUERY).await;
-        assert_eq!(job["status"], "succeeded", "{job:#}");
-        job
-    };
-    let job = run().await;
+    let job = f.run_whiteboard_mark_0().await;
     let out = &steps(&job, "candidates")[0]["outputs"];
     assert_eq!(out["from"], "computed", "{out:#}");
     let want: Vec<Vec<f32>> = indexed[&0].iter().map(|d| d.bbox.to_vec()).collect();
@@ -74,7 +63,7 @@ async fn candidates_cached_under_an_older_key_are_found_again_not_read() {
     }
 
     // The next job reads what the first one cached.
-    let job = run().await;
+    let job = f.run_whiteboard_mark_0().await;
     assert_eq!(steps(&job, "candidates")[0]["outputs"]["from"], "index");
     let proj = &steps(&job, "projection")[0]["outputs"];
     assert_eq!(proj["view_candidates_computed"], serde_json::json!([]));

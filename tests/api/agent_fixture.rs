@@ -228,6 +228,19 @@ impl Fixture {
             .collect()
     }
 
+    /// A job the VLM answers with a whiteboard in image 00000, picking mark (or object) 0;
+    /// it must succeed.
+    pub async fn run_whiteboard_mark_0(&self) -> Value {
+        self.vlm.script_push(vec![
+            analysis("whiteboard"),
+            pick_image("00000"),
+            pick_object(0),
+        ]);
+        let job = self.run_job(crate::agent_paths::QUERY).await;
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        job
+    }
+
     /// Submit a job and wait until it ends.
     pub async fn run_job(&self, query: &str) -> Value {
         let id = self.submit(query).await;

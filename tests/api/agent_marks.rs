@@ -13,13 +13,7 @@ use grounder::vlm::prompts::markers;
 #[tokio::test]
 async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
     let f = Fixture::start_with_candidates(vec![], 5_000, "centernet").await;
-    f.vlm.script_push(vec![
-        analysis("whiteboard"),
-        pick_image("00000"),
-        pick_object(0),
-    ]);
-    let job = f.run_job(QUERY).await;
-    assert_eq!(job["status"], "succeeded", "{job:#}");
+    let job = f.run_whiteboard_mark_0().await;
     assert_eq!(job["result"]["box_source"], "marks", "{:#}", job["result"]);
     let cands = steps(&job, "candidates");
     assert_eq!(cands.len(), 1, "{job:#}");
@@ -63,13 +57,7 @@ async fn ensemble_views_take_the_candidate_that_holds_the_object() {
             c.agent.candidates.in_views_partial_only = partial_only;
         })
         .await;
-        f.vlm.script_push(vec![
-            analysis("whiteboard"),
-            pick_image("00000"),
-            pick_object(0),
-        ]);
-        let job = f.run_job(QUERY).await;
-        assert_eq!(job["status"], "succeeded", "{job:#}");
+        let job = f.run_whiteboard_mark_0().await;
         let proj = steps(&job, "projection");
         let views = proj[0]["outputs"]["views"]
             .as_array()
