@@ -18,7 +18,8 @@
 //!    a bed of another colour is a candidate of its own;
 //! 5. **groups**: object regions that touch in the image across a larger depth step
 //!    (`group_step` + `group_per_m` per metre): a lamp's shade and the pole behind it, a
-//!    chair's back and its seat seen over a table's edge. Offered beside their members;
+//!    chair's back and its seat seen over a table's edge. Offered beside their members,
+//!    and in a group of three or more, each two members that touch across such a step;
 //! 6. **on tops**: an object standing on a level top of its region (a box on a table of
 //!    its colour, a lamp on a nightstand), split from it by height (`tops`), and each
 //!    colour of it (two pillows side by side on a bed);
@@ -189,7 +190,7 @@ impl Default for CandidateParams {
 /// Version of what [`frame_candidates`] computes from the same frame and settings. Raise it
 /// with every change to its output: cached candidates of another version are not read
 /// (they are computed again where a job needs them, and replaced at the next indexing).
-pub const ALGORITHM_VERSION: u32 = 2;
+pub const ALGORITHM_VERSION: u32 = 3;
 
 /// Settings of [`CandidateParams`] that decide how the candidates are used, not which are
 /// found: changing them keeps the cache.
@@ -381,6 +382,16 @@ pub fn frame_candidates(
             }
         }
     }
+    // Members of a group of three or more: each pair that touches across a group step is
+    // offered too (a plant's leaves over its pot, beside a cabinet the leaves touch).
+    let mut touching: std::collections::BTreeSet<(usize, usize)> = Default::default();
+    for (a, b) in pairs(g.w, g.h) {
+        let (ka, kb) = (object_of[a], object_of[b]);
+        if ka != kb && ka != usize::MAX && kb != usize::MAX && grouped(a, b) {
+            touching.insert((ka.min(kb), ka.max(kb)));
+        }
+    }
+    let big = |k: usize| object_regions[k].len() >= p.min_cells;
     for r in regions(&mut groups, free, n) {
         let mut members: Vec<usize> = r.iter().map(|&i| object_of[i]).collect();
         members.sort_unstable();
@@ -389,6 +400,19 @@ pub fn frame_candidates(
             let c = to_candidate(&g, &r, CandidateKind::Group, dims);
             if fits(&c) {
                 out.push(c);
+            }
+        }
+        if members.len() > 2 {
+            for &(ka, kb) in touching.iter().filter(|(ka, kb)| {
+                members.binary_search(ka).is_ok() && members.binary_search(kb).is_ok()
+            }) {
+                if big(ka) && big(kb) {
+                    let both = [&object_regions[ka][..], &object_regions[kb][..]].concat();
+                    let c = to_candidate(&g, &both, CandidateKind::Group, dims);
+                    if fits(&c) {
+                        out.push(c);
+                    }
+                }
             }
         }
     }

@@ -184,6 +184,27 @@ fn a_picture_on_a_wall_is_a_candidate() {
 }
 
 #[test]
+fn a_lamp_grouped_with_a_cabinet_behind_it_is_a_candidate_of_its_own() {
+    // The lamp of the first test (a shade before its pole), and a cabinet 25 cm behind
+    // the shade that its right edge touches in the image: the three are one group, and
+    // only the shade and the pole together outline the lamp.
+    let mut parts = room();
+    parts.push(part([1.97, 3.67, 0.0], [2.03, 3.73, 1.3], [40, 40, 40], 7));
+    parts.push(part([1.8, 3.5, 1.3], [2.2, 3.9, 1.6], [200, 30, 30], 7));
+    parts.push(part([2.2, 3.75, 0.0], [2.9, 4.0, 1.8], [230, 220, 200], 8));
+    let cam = camera([2.0, 0.8, 1.4], [2.0, 4.0, 1.0]);
+    let (cands, ids) = run(&cam, &parts);
+    for (id, what) in [(7, "lamp"), (8, "cabinet")] {
+        let truth = truth_box(&ids, 320, id);
+        let iou = best_iou(&cands, &truth);
+        assert!(
+            iou > 0.7,
+            "{what}: best IoU {iou:.2} with {truth:?}: {cands:?}"
+        );
+    }
+}
+
+#[test]
 fn without_depth_or_room_nothing_is_proposed() {
     let cam = camera([2.0, 1.0, 1.4], [2.0, 4.0, 1.4]);
     let depth = DepthMap::new(320, 240, vec![0; 320 * 240]);
