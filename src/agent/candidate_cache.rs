@@ -31,20 +31,33 @@ pub async fn of_frames(
     known: Option<(usize, &RgbImage)>,
 ) -> Result<Found, JobFailure> {
     let key = g.params.candidates.cache_key(&g.params.geometry.layout);
-    let mut cached = ctx
-        .store
-        .scene_candidates(&ctx.scene.id, &key)
-        .await
-        .map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
+    let mut wanted = frames.to_vec();
+    wanted.sort_unstable();
+    wanted.dedup();
+    let store_err = |e: crate::store::StoreError| JobFailure::new("storage_error", e.to_string());
+    let mut cached = match wanted[..] {
+        // One frame (the marks): its rows only.
+        [i] => ctx
+            .store
+            .frame_candidates(&ctx.scene.id, &key, i)
+            .await
+            .map_err(store_err)?
+            .map(|c| BTreeMap::from([(i, c)]))
+            .unwrap_or_default(),
+        _ => ctx
+            .store
+            .scene_candidates(&ctx.scene.id, &key)
+            .await
+            .map_err(store_err)?,
+    };
     let mut by_frame = BTreeMap::new();
     let mut missing = Vec::new();
-    for &i in frames {
+    for i in wanted {
         match cached.remove(&i) {
             Some(c) => {
                 by_frame.insert(i, c);
             }
-            None if !missing.contains(&i) => missing.push(i),
-            None => {}
+            None => missing.push(i),
         }
     }
     if missing.is_empty() {
