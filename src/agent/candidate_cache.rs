@@ -90,15 +90,7 @@ pub async fn of_frames(
             .filter_map(|&i| {
                 let (f, img) = (&scene.frames[i], images.get(&i)?);
                 let c = frame_candidates(&f.camera, &f.depth, img, room.as_deref(), &lp, &cp);
-                let dets: Vec<Detection> = c
-                    .into_iter()
-                    .map(|c| Detection {
-                        label: c.kind.label().to_string(),
-                        score: 1.0,
-                        bbox: c.bbox,
-                    })
-                    .collect();
-                Some((i, dets))
+                Some((i, c.into_iter().map(Detection::from).collect::<Vec<_>>()))
             })
             .collect::<Vec<_>>()
     })

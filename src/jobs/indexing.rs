@@ -56,11 +56,7 @@ pub fn index_frame(
             &setup.params,
         )
         .into_iter()
-        .map(|c| Detection {
-            label: c.kind.label().to_string(),
-            score: 1.0,
-            bbox: c.bbox,
-        })
+        .map(Detection::from)
         .collect()
     });
     if let Err(e) = store_preview(&img, &frame.preview_path()) {

@@ -31,6 +31,18 @@ async fn replace_frame_rows(
     .bind(frame_idx as i64)
     .execute(&mut **tx)
     .await?;
+    insert_frame_rows(tx, backend, scene_id, detector, frame_idx, rows).await
+}
+
+/// Add `rows` to one frame's cached rows of `detector`, inside `tx`.
+async fn insert_frame_rows(
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    backend: super::Backend,
+    scene_id: &str,
+    detector: &str,
+    frame_idx: usize,
+    rows: &[Detection],
+) -> Result<(), StoreError> {
     for d in rows {
         sqlx::query(&backend.sql("INSERT INTO detections (scene_id, detector, frame_idx, label, score, x1, y1, x2, y2) VALUES (?,?,?,?,?,?,?,?,?)"))
             .bind(scene_id)
@@ -91,7 +103,7 @@ impl Store {
         .bind(frame_idx as i64)
         .execute(&mut *tx)
         .await?;
-        replace_frame_rows(&mut tx, self.backend, scene_id, key, frame_idx, rows).await?;
+        insert_frame_rows(&mut tx, self.backend, scene_id, key, frame_idx, rows).await?;
         tx.commit().await?;
         Ok(())
     }

@@ -277,6 +277,17 @@ pub struct Candidate {
     pub max: [f64; 3],
 }
 
+impl From<Candidate> for crate::vision::Detection {
+    /// The row a candidate is cached and offered as: its kind's label, score 1.
+    fn from(c: Candidate) -> Self {
+        Self {
+            label: c.kind.label().to_string(),
+            score: 1.0,
+            bbox: c.bbox,
+        }
+    }
+}
+
 /// Intersection over union of two boxes [x1, y1, x2, y2].
 pub fn box_iou(a: &[f32; 4], b: &[f32; 4]) -> f64 {
     let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);

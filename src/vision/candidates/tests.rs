@@ -128,13 +128,19 @@ fn run(cam: &FrameCamera, parts: &[Part]) -> (Vec<Candidate>, Vec<u16>) {
     (c, ids)
 }
 
+/// A floor lamp 20 cm before the wall at y = 4 (thin pole, red shade), instance `id`, and
+/// the camera both lamp tests look at it with.
+fn floor_lamp(id: u16) -> ([Part; 2], FrameCamera) {
+    let pole = part([1.97, 3.67, 0.0], [2.03, 3.73, 1.3], [40, 40, 40], id);
+    let shade = part([1.8, 3.5, 1.3], [2.2, 3.9, 1.6], [200, 30, 30], id);
+    ([pole, shade], camera([2.0, 0.8, 1.4], [2.0, 4.0, 1.0]))
+}
+
 #[test]
 fn a_lamp_before_a_wall_is_a_candidate_and_the_wall_is_not() {
     let mut parts = room();
-    // Floor lamp 20 cm before the wall at y = 4: thin pole, red shade.
-    parts.push(part([1.97, 3.67, 0.0], [2.03, 3.73, 1.3], [40, 40, 40], 7));
-    parts.push(part([1.8, 3.5, 1.3], [2.2, 3.9, 1.6], [200, 30, 30], 7));
-    let cam = camera([2.0, 0.8, 1.4], [2.0, 4.0, 1.0]);
+    let (lamp, cam) = floor_lamp(7);
+    parts.extend(lamp);
     let (cands, ids) = run(&cam, &parts);
     let truth = truth_box(&ids, 320, 7);
     let iou = best_iou(&cands, &truth);
@@ -189,10 +195,9 @@ fn a_lamp_grouped_with_a_cabinet_behind_it_is_a_candidate_of_its_own() {
     // the shade that its right edge touches in the image: the three are one group, and
     // only the shade and the pole together outline the lamp.
     let mut parts = room();
-    parts.push(part([1.97, 3.67, 0.0], [2.03, 3.73, 1.3], [40, 40, 40], 7));
-    parts.push(part([1.8, 3.5, 1.3], [2.2, 3.9, 1.6], [200, 30, 30], 7));
+    let (lamp, cam) = floor_lamp(7);
+    parts.extend(lamp);
     parts.push(part([2.2, 3.75, 0.0], [2.9, 4.0, 1.8], [230, 220, 200], 8));
-    let cam = camera([2.0, 0.8, 1.4], [2.0, 4.0, 1.0]);
     let (cands, ids) = run(&cam, &parts);
     for (id, what) in [(7, "lamp"), (8, "cabinet")] {
         let truth = truth_box(&ids, 320, id);
