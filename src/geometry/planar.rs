@@ -192,7 +192,9 @@ pub const ON_ROOM_WALL: f64 = 0.002;
 /// the `room`'s box has one there (see [`super::layout`]).
 /// A plane lying on its wall (no frame resolved the object's front from the wall: its
 /// points were ended on the room's box, or it meets the wall found behind it) gets
-/// `flat_depth` in front of that wall, unless some of its points ended on the room's box
+/// `flat_depth` (the class's depth) in front of that wall, and so does a plane found nearer
+/// the wall than that: it is the object's back layer (a window's glass, when its frame
+/// was not told apart from it), as no object of the class is thinner; unless some of its points ended on the room's box
 /// were measured well in front of it (a window's frame before glass the sensor does not
 /// see): those give the front. When most of the anchor's points lie on one of the
 /// room's walls (within [`ON_ROOM_WALL`]: depth completion ends the rays no frame measured
@@ -329,10 +331,15 @@ pub fn snap_planar_to_wall(
         });
         if let Some(wall) = wall {
             // On its wall: the object's front was never seen apart from it.
+            // A plane found nearer its wall than the class's depth is the object's back
+            // layer (a window's glass, its frame not told apart from it) or the object
+            // lying on the wall: it gets that depth.
             let front = match (on_wall, seen_front) {
                 (Some(_), Some(f)) => f,
                 (Some(_), None) => wall - sign * flat_depth,
-                (None, _) if sign * (wall - front) < MIN_DEPTH => wall - sign * flat_depth,
+                (None, _) if sign * (wall - front) < flat_depth.max(MIN_DEPTH) => {
+                    wall - sign * flat_depth
+                }
                 (None, _) => front,
             };
             out.min[a] = front.min(wall);

@@ -103,10 +103,28 @@ fn a_window_frame_before_its_glass_is_the_front() {
         (b.min[1] - 6.04).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01,
         "{b:?}"
     );
-    // With the median (one layer), the front is the glass.
+    // With the median (one layer), the plane found is the glass, 1 cm before the wall:
+    // thinner than any window, so the box gets the class's depth.
     let mut median = gp.clone();
     median.support.planar_front_share = 0.0;
-    let b = run(&median);
+    let (b, snaps) =
+        snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &median);
+    assert!((snaps[0].front - 6.10).abs() < 0.01, "{snaps:?}");
+    assert!(
+        (b.min[1] - 6.06).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01,
+        "{b:?}"
+    );
+    // A class known to be thinner keeps the plane it measured.
+    let b = snap_planar_to_wall(
+        &fused,
+        &window,
+        &wall,
+        None,
+        [1.3, 3.0, 1.5],
+        0.005,
+        &median,
+    )
+    .0;
     assert!((b.min[1] - 6.10).abs() < 0.01, "{b:?}");
 }
 

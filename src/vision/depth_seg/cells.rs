@@ -1,4 +1,4 @@
-//! Operations on a grid region: its extent in the box, its largest component, and the
+//! Operations on a grid region: its extent in the box, its main components, and the
 //! edge creases and holes closed after growth.
 
 use super::{DepthSegmenter, Grid};
@@ -70,20 +70,27 @@ impl DepthSegmenter {
         recede > rise
     }
 
-    /// Keep the largest 4-connected component of `region`.
-    pub(super) fn largest_component(g: &Grid, region: &[bool]) -> Vec<bool> {
-        let mut label = vec![0u32; region.len()];
-        let (mut best, mut best_n, mut next) = (0u32, 0usize, 0u32);
+    /// Keep the largest 4-connected component of `region`, and any other that holds at
+    /// least half as many cells and is of its colour (mean RGB within `colour_tol`, summed
+    /// over the channels). Stray bits go; one surface split by something before it (the
+    /// panes of a window either side of its mullion) stays whole.
+    pub(super) fn main_components(g: &Grid, region: &[bool], colour_tol: f64) -> Vec<bool> {
+        let mut label = vec![0usize; region.len()];
+        // Per component: cells and summed colour (label 0 is no component).
+        let mut comps: Vec<(usize, [f64; 3])> = vec![(0, [0.0; 3])];
         for start in 0..region.len() {
             if !region[start] || label[start] != 0 {
                 continue;
             }
-            next += 1;
-            let mut n = 0;
+            let next = comps.len();
+            let (mut n, mut rgb) = (0, [0.0; 3]);
             let mut stack = vec![start];
             label[start] = next;
             while let Some(i) = stack.pop() {
                 n += 1;
+                for (c, v) in rgb.iter_mut().zip(g.rgb[i]) {
+                    *c += f64::from(v);
+                }
                 for j in g.neighbours(i).into_iter().flatten() {
                     if region[j] && label[j] == 0 {
                         label[j] = next;
@@ -91,12 +98,26 @@ impl DepthSegmenter {
                     }
                 }
             }
-            if n > best_n {
-                best_n = n;
-                best = next;
-            }
+            comps.push((n, rgb));
         }
-        label.iter().map(|&l| l != 0 && l == best).collect()
+        let mean = |k: usize| comps[k].1.map(|c| c / comps[k].0.max(1) as f64);
+        let Some(top) = (1..comps.len()).max_by_key(|&k| (comps[k].0, std::cmp::Reverse(k))) else {
+            return vec![false; region.len()];
+        };
+        let keep: Vec<bool> = (0..comps.len())
+            .map(|k| {
+                k == top
+                    || (k > 0
+                        && 2 * comps[k].0 >= comps[top].0
+                        && mean(k)
+                            .iter()
+                            .zip(mean(top))
+                            .map(|(a, b)| (a - b).abs())
+                            .sum::<f64>()
+                            <= colour_tol)
+            })
+            .collect();
+        label.iter().map(|&l| keep[l]).collect()
     }
 
     /// Edge cells with the region on two opposite sides are a crease inside the object (a

@@ -14,8 +14,10 @@
 //! surfaces that stay mostly inside the box, the one whose extent fills the box best while
 //! running least past its edges is the object: a tight box ends where the object ends, an
 //! occluder in front covers only part of it, and the background behind runs on past it.
-//! (5) Small holes (missing depth) are closed and depth-less pixels whose colour matches the
-//! region are added back.
+//! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
+//! its size and of its colour (a window's panes either side of its mullion). Small holes
+//! (missing depth) are closed and depth-less pixels whose colour matches the region are
+//! added back.
 
 use std::collections::VecDeque;
 
@@ -560,7 +562,7 @@ impl Segmenter for DepthSegmenter {
             return Ok(Mask::from_box(cw, ch, bbox));
         };
         let inside: Vec<bool> = (0..region.len()).map(|i| region[i] && g.inb[i]).collect();
-        let mut region = Self::largest_component(&g, &inside);
+        let mut region = Self::main_components(&g, &inside, self.colour_tol);
         Self::close_edges(&g, &mut region);
         Self::fill_holes(&g, &mut region);
         let mut mask = Mask::new(cw, ch);

@@ -347,3 +347,67 @@ fn a_table_top_the_growth_ran_onto_is_cut() {
         uncut.iou(&truth)
     );
 }
+
+/// A grey wall at 3.1 m; a brown window frame [20, 60) x [20, 60) at 3.03 m, 4 pixels
+/// wide, with a mullion at x in [36, 40); glass panes 1 cm before the wall either side of
+/// it, the left one pale blue, the right one `right`. Returns the frame and each pane's mask.
+fn window(right: [u8; 3]) -> (RgbImage, DepthMap, FrameCamera, [Mask; 2]) {
+    let mut color = RgbImage::from_pixel(S, S, Rgb([150, 150, 150]));
+    let mut depth = vec![3100u16; (S * S) as usize];
+    let mut panes = [Mask::new(S, S), Mask::new(S, S)];
+    for y in 20..60u32 {
+        for x in 20..60u32 {
+            let frame = !(24..56).contains(&y) || !(24..56).contains(&x) || (36..40).contains(&x);
+            let i = (y * S + x) as usize;
+            if frame {
+                depth[i] = 3030;
+                color.put_pixel(x, y, Rgb([120, 80, 40]));
+            } else {
+                depth[i] = 3090;
+                let k = usize::from(x >= 38);
+                color.put_pixel(x, y, Rgb(if k == 0 { [175, 195, 215] } else { right }));
+                panes[k].set(x, y, true);
+            }
+        }
+    }
+    let cam = camera(
+        80.0,
+        look_at_pose(
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(3.0, 0.0, 1.0),
+            Vector3::z(),
+        ),
+    );
+    (color, DepthMap::new(S, S, depth), cam, panes)
+}
+
+fn share_in(pane: &Mask, m: &Mask) -> f64 {
+    let held = (0..S)
+        .flat_map(|y| (0..S).map(move |x| (x, y)))
+        .filter(|&(x, y)| pane.get(x, y) && m.get(x, y))
+        .count();
+    held as f64 / pane.count() as f64
+}
+
+#[test]
+fn a_window_split_by_its_mullion_keeps_both_panes() {
+    // The wall and the glass are one surface to depth, so colour keeps the glass, which the
+    // mullion cuts in two.
+    let segment = |right| {
+        let (color, depth, cam, panes) = window(right);
+        let input = SegmentInput {
+            color: &color,
+            depth: &depth,
+            camera: &cam,
+        };
+        let m = DepthSegmenter::default()
+            .segment(&input, [20.0, 20.0, 60.0, 60.0])
+            .unwrap();
+        (share_in(&panes[0], &m), share_in(&panes[1], &m))
+    };
+    let (left, right) = segment([175, 195, 215]);
+    assert!(left > 0.8 && right > 0.8, "panes: {left:.2} {right:.2}");
+    // Of another colour, the smaller piece is another surface: only the larger stays.
+    let (left, right) = segment([60, 140, 70]);
+    assert!(left < 0.05 && right > 0.8, "panes: {left:.2} {right:.2}");
+}
