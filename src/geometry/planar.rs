@@ -194,9 +194,9 @@ pub const ON_ROOM_WALL: f64 = 0.002;
 /// points were ended on the room's box, or it meets the wall found behind it) gets
 /// `flat_depth` (the class's depth) in front of that wall, and so does a plane found nearer
 /// the wall than that: it is the object's back layer (a window's glass, when its frame
-/// was not told apart from it), as no object of the class is thinner; unless some of its points ended on the room's box
-/// were measured well in front of it (a window's frame before glass the sensor does not
-/// see): those give the front. When most of the anchor's points lie on one of the
+/// was not told apart from it), as no object of the class is thinner. But when some of the
+/// points ended on the room's box were measured well in front of it (a window's frame
+/// before glass the sensor does not see), those give the front. When most of the anchor's points lie on one of the
 /// room's walls (within [`ON_ROOM_WALL`]: depth completion ends the rays no frame measured
 /// exactly there, while measured points scatter by the sensor's noise), that wall is the
 /// object's, whatever layer the context shows nearby.

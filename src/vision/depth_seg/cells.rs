@@ -101,7 +101,8 @@ impl DepthSegmenter {
             comps.push((n, rgb));
         }
         let mean = |k: usize| comps[k].1.map(|c| c / comps[k].0.max(1) as f64);
-        let Some(top) = (1..comps.len()).max_by_key(|&k| (comps[k].0, std::cmp::Reverse(k))) else {
+        let largest = (1..comps.len()).max_by_key(|&k| (comps[k].0, std::cmp::Reverse(k)));
+        let Some(top) = largest else {
             return vec![false; region.len()];
         };
         let keep: Vec<bool> = (0..comps.len())
