@@ -26,6 +26,18 @@ fn camera(f: f64, pose: Matrix4<f64>) -> FrameCamera {
     }
 }
 
+/// The S x S camera at 1 m height, looking level along +x, focal length 80 pixels.
+fn level_camera() -> FrameCamera {
+    camera(
+        80.0,
+        look_at_pose(
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(3.0, 0.0, 1.0),
+            Vector3::z(),
+        ),
+    )
+}
+
 /// A camera looking level along +x at a wall 3.1 m away (grey). Box [30, 30, 50, 50]:
 /// a dark bin fills its right 60 % at 3.03 m (a depth step to the wall within the growth
 /// limit) and leans into the wall at its top; a white bed at 2.0 m covers the box's left
@@ -50,14 +62,7 @@ fn scene() -> (RgbImage, DepthMap, FrameCamera, Mask) {
             depth[(y * S + x) as usize] = 2000;
         }
     }
-    let cam = camera(
-        80.0,
-        look_at_pose(
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(3.0, 0.0, 1.0),
-            Vector3::z(),
-        ),
-    );
+    let cam = level_camera();
     (color, DepthMap::new(S, S, depth), cam, bin)
 }
 
@@ -176,14 +181,7 @@ fn a_slanted_surface_is_not_taken_for_an_edge() {
         }
     }
     let depth = DepthMap::new(S, S, depth);
-    let cam = camera(
-        80.0,
-        look_at_pose(
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(3.0, 0.0, 1.0),
-            Vector3::z(),
-        ),
-    );
+    let cam = level_camera();
     let input = SegmentInput {
         color: &color,
         depth: &depth,
@@ -223,14 +221,7 @@ fn touching_objects_at_one_depth_are_told_apart_by_colour() {
             }
         }
     }
-    let cam = camera(
-        80.0,
-        look_at_pose(
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(3.0, 0.0, 1.0),
-            Vector3::z(),
-        ),
-    );
+    let cam = level_camera();
     let depth = DepthMap::new(S, S, depth);
     let input = SegmentInput {
         color: &color,
@@ -370,14 +361,7 @@ fn window(right: [u8; 3]) -> (RgbImage, DepthMap, FrameCamera, [Mask; 2]) {
             }
         }
     }
-    let cam = camera(
-        80.0,
-        look_at_pose(
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(3.0, 0.0, 1.0),
-            Vector3::z(),
-        ),
-    );
+    let cam = level_camera();
     (color, DepthMap::new(S, S, depth), cam, panes)
 }
 
