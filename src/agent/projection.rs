@@ -361,6 +361,7 @@ pub async fn run(
                 mask: &anchor_mask,
                 points: &anchor_pts,
                 region: None,
+                partial,
             };
             // A view that segmented only the reprojected part of a partly seen object
             // votes only inside that box.
@@ -376,6 +377,7 @@ pub async fn run(
                     mask: &c.mask,
                     points: &c.points,
                     region: region(*i),
+                    partial: false,
                 })
                 .collect();
             let frames: Vec<_> = sc
@@ -471,7 +473,7 @@ pub async fn run(
         .map(|(v, (_, b, from))| {
             let d = fusion.views.iter().find(|d| d.index == v.index);
             json!({"image_id": format!("{:05}", v.index), "visible_fraction": v.visible_fraction, "footprint": v.bbox, "box": b, "box_from_detection": *from == BoxFrom::Detection, "box_from": from,
-                   "chamfer": d.and_then(|d| d.chamfer), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points), "depth_fill": fills.get(&v.index).cloned().unwrap_or_default()})
+                   "chamfer": d.and_then(|d| d.chamfer), "cover": d.and_then(|d| d.cover), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points), "depth_fill": fills.get(&v.index).cloned().unwrap_or_default()})
         })
         .collect();
     step(

@@ -199,7 +199,7 @@ pub(super) fn check_candidates(
         .iter()
         .map(|(i, _, c)| (*i, c.as_ref().map_or(&[][..], |(c, _)| &c.points[..])))
         .collect();
-    let decisions = chamfer_decisions(anchor, &clouds, &vs.params);
+    let decisions = chamfer_decisions(anchor, &clouds, false, &vs.params);
     let mut kept = HashMap::new();
     let mut trace = Vec::new();
     for ((i, b, cloud), d) in segmented.into_iter().zip(decisions) {

@@ -24,6 +24,7 @@ impl Method {
         }
         let g = &mut agent.geometry;
         g.chamfer_threshold = 0.1;
+        g.chamfer_cover_threshold = 0.0;
         g.cluster_voxel = 0.0;
         g.box_trim = 0.0;
         g.plane_iqr = 0.0;
@@ -50,6 +51,7 @@ mod tests {
         Method::Paper.apply(&mut a);
         let g = &a.geometry;
         assert_eq!(g.chamfer_threshold, 0.1);
+        assert_eq!(g.chamfer_cover_threshold, 0.0);
         assert_eq!(g.cluster_voxel, 0.0);
         assert!(!g.consensus.mask_votes && !g.consensus.free_space);
         assert!(!g.depth_fill.enabled && !g.layout.enabled && !g.support.enabled);

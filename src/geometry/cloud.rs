@@ -268,12 +268,28 @@ pub fn chamfer_distance(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<f64> {
 /// [`chamfer_distance`] of `a` to each of `bs`, with `a`'s k-d tree built once for all of
 /// them (a view's value does not depend on the others: the same to the bit as alone).
 pub fn chamfer_distances<B: AsRef<[Point3<f64>]>>(a: &[Point3<f64>], bs: &[B]) -> Vec<Option<f64>> {
+    directional_chamfers(a, bs)
+        .into_iter()
+        .map(|d| d.map(|[ab, ba]| ab + ba))
+        .collect()
+}
+
+/// The two terms of [`chamfer_distance`] of `a` to each of `bs`, apart: `[a→b, b→a]`, the
+/// mean squared distance from `a`'s points to `b`'s nearest, and back. The first is small
+/// when `b` holds all of `a` (whatever else `b` holds). `None` when either cloud is empty.
+pub fn directional_chamfers<B: AsRef<[Point3<f64>]>>(
+    a: &[Point3<f64>],
+    bs: &[B],
+) -> Vec<Option<[f64; 2]>> {
     let ta = (!a.is_empty() && bs.iter().any(|b| !b.as_ref().is_empty())).then(|| build_tree(a));
     bs.iter()
         .map(|b| {
             let b = b.as_ref();
             let ta = ta.as_ref().filter(|_| !b.is_empty())?;
-            Some(directional_mean_sq(a, &build_tree(b)) + directional_mean_sq(b, ta))
+            Some([
+                directional_mean_sq(a, &build_tree(b)),
+                directional_mean_sq(b, ta),
+            ])
         })
         .collect()
 }

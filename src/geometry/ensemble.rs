@@ -6,7 +6,7 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    chamfer_distances, cluster_keep, outliers_and_neighbours, subsample_even, voxel_downsample,
+    cluster_keep, directional_chamfers, outliers_and_neighbours, subsample_even, voxel_downsample,
 };
 use super::knn::{neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours};
 use super::projection::{project_points, Projected, ProjectionError};
@@ -138,6 +138,9 @@ pub struct ViewDecision {
     pub index: usize,
     /// Chamfer distance (m^2) to the anchor cloud; `None` when a cloud was empty.
     pub chamfer: Option<f64>,
+    /// Its anchor-to-view term (m^2): how far the anchor's points lie from the view's, the
+    /// part that stays small when the view sees the anchor's part and more of the object.
+    pub cover: Option<f64>,
     pub kept: bool,
     pub points: usize,
 }
@@ -176,7 +179,7 @@ pub fn fuse_views(
     others: &[(usize, Vec<Point3<f64>>)],
     params: &GeometryParams,
 ) -> FusionResult {
-    let views = chamfer_decisions(anchor, others, params);
+    let views = chamfer_decisions(anchor, others, false, params);
     let mut clouds: Vec<&[Point3<f64>]> = vec![anchor];
     clouds.extend(
         others
@@ -189,10 +192,15 @@ pub fn fuse_views(
 }
 
 /// Step 1 of [`fuse_views`]: the chamfer distance of each view to the anchor, both clouds
-/// voxel-downsampled by `params.chamfer_voxel`, and whether it passes the threshold.
+/// voxel-downsampled by `params.chamfer_voxel`, and whether it passes the threshold. When
+/// the anchor saw only part of its object (`anchor_partial`), a view also passes when its
+/// anchor-to-view term alone is within `params.chamfer_cover_threshold`: it holds what the
+/// anchor saw, and what lies beyond is the rest of the
+/// object the anchor could not see, not a reason to drop the view.
 pub fn chamfer_decisions<P: AsRef<[Point3<f64>]>>(
     anchor: &[Point3<f64>],
     others: &[(usize, P)],
+    anchor_partial: bool,
     params: &GeometryParams,
 ) -> Vec<ViewDecision> {
     // No views (the single-view box, an anchor no frame sees): nothing to compare with.
@@ -204,18 +212,23 @@ pub fn chamfer_decisions<P: AsRef<[Point3<f64>]>>(
         .iter()
         .map(|(_, pts)| voxel_downsample(pts.as_ref(), params.chamfer_voxel))
         .collect();
+    let cover_max = Some(params.chamfer_cover_threshold).filter(|&t| anchor_partial && t > 0.0);
     // The anchor's tree is built once for all the views.
-    let chamfers = chamfer_distances(&anchor_ds, &views_ds);
+    let terms = directional_chamfers(&anchor_ds, &views_ds);
     others
         .iter()
-        .zip(chamfers)
-        .map(|((index, pts), chamfer)| {
-            let pts = pts.as_ref();
+        .zip(terms)
+        .map(|((index, pts), t)| {
+            let chamfer = t.map(|[ab, ba]| ab + ba);
+            let cover = t.map(|[ab, _]| ab);
+            let within = |d: Option<f64>, t: f64| d.is_some_and(|c| c <= t);
+            let covers = cover_max.is_some_and(|t| within(cover, t));
             ViewDecision {
                 index: *index,
                 chamfer,
-                kept: chamfer.is_some_and(|c| c <= params.chamfer_threshold),
-                points: pts.len(),
+                cover,
+                kept: within(chamfer, params.chamfer_threshold) || covers,
+                points: pts.as_ref().len(),
             }
         })
         .collect()

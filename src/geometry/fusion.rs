@@ -22,6 +22,9 @@ pub struct SegmentedView<'a> {
     pub points: &'a [Point3<f64>],
     /// Where the mask speaks for the frame in the votes (see [`MaskView::region`]).
     pub region: Option<[f32; 4]>,
+    /// The mask holds only part of its object (see [`super::partial_view`]); meaningful for
+    /// the anchor, where it lets the chamfer filter keep views that see more.
+    pub partial: bool,
 }
 
 /// What the mask votes did (for traces).
@@ -56,7 +59,7 @@ pub fn fuse_segmented(
 ) -> VotedFusion {
     let other_pts: Vec<(usize, &[Point3<f64>])> =
         others.iter().map(|v| (v.index, v.points)).collect();
-    let decisions = chamfer_decisions(anchor.points, &other_pts, params);
+    let decisions = chamfer_decisions(anchor.points, &other_pts, anchor.partial, params);
     let mut voters = vec![MaskView {
         camera: anchor.camera,
         depth: anchor.depth,

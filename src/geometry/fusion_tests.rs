@@ -120,6 +120,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         mask: &anchor_mask,
         points: &anchor_pts,
         region: None,
+        partial: false,
     };
     let side = SegmentedView {
         index: 1,
@@ -128,6 +129,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         mask: &side_mask,
         points: &side_pts,
         region: None,
+        partial: false,
     };
     let frames = [(&anchor_cam, &anchor_depth), (&side_cam, &side_depth)];
     let out = fuse_segmented(anchor, &[side], &frames, &params);
@@ -145,4 +147,132 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         "the box must reach down to the seat: {b:?}"
     );
     assert!(b.max[2] > 0.9 && b.min[1] > 0.85, "{b:?}");
+}
+
+const LAMP: u16 = 3;
+
+/// A floor lamp at the origin: a round base's box, a 3 cm pole and a shade 1.3–1.6 m up.
+fn floor_lamp() -> Vec<Part> {
+    vec![
+        ([-2.0, -2.0, -0.02], [3.0, 4.0, 0.0], 1),
+        ([-0.12, -0.12, 0.0], [0.12, 0.12, 0.03], LAMP),
+        ([-0.015, -0.015, 0.03], [0.015, 0.015, 1.3], LAMP),
+        ([-0.2, -0.2, 1.3], [0.2, 0.2, 1.6], LAMP),
+    ]
+}
+
+#[test]
+fn a_close_up_of_a_lamps_foot_keeps_the_view_that_sees_its_shade() {
+    use crate::geometry::{partial_view, PartialParams};
+    let parts = floor_lamp();
+    let params = GeometryParams::default();
+    // The chosen view: low and near, the image's top edge cuts the pole.
+    let anchor_cam = camera([0.0, -0.8, 0.3], [0.0, 0.0, 0.3]);
+    // Another view, from across the room: the whole lamp.
+    let far_cam = camera([2.2, -2.2, 1.2], [0.0, 0.0, 0.8]);
+    let (anchor_depth, anchor_ids) = render(&anchor_cam, &parts);
+    let (far_depth, far_ids) = render(&far_cam, &parts);
+    let anchor_mask = mask_of(&anchor_ids, 160, 120, LAMP);
+    let far_mask = mask_of(&far_ids, 160, 120, LAMP);
+    let anchor_pts = mask_points(&anchor_mask, &anchor_cam, &anchor_depth, &params).unwrap();
+    let far_pts = mask_points(&far_mask, &far_cam, &far_depth, &params).unwrap();
+    let alone = Aabb::from_points(&anchor_pts).unwrap();
+    assert!(
+        alone.max[2] < 0.8,
+        "the chosen view sees the foot: {alone:?}"
+    );
+    let seen = partial_view(
+        &anchor_mask,
+        &anchor_cam,
+        &anchor_depth,
+        &PartialParams::default(),
+    );
+    assert!(seen.border && seen.partial, "{seen:?}");
+
+    let fuse = |partial: bool| {
+        let anchor = SegmentedView {
+            index: 0,
+            camera: &anchor_cam,
+            depth: &anchor_depth,
+            mask: &anchor_mask,
+            points: &anchor_pts,
+            region: None,
+            partial,
+        };
+        let far = SegmentedView {
+            index: 1,
+            camera: &far_cam,
+            depth: &far_depth,
+            mask: &far_mask,
+            points: &far_pts,
+            region: None,
+            partial: false,
+        };
+        let frames = [(&anchor_cam, &anchor_depth), (&far_cam, &far_depth)];
+        fuse_segmented(anchor, &[far], &frames, &params)
+    };
+    // Taken as a whole object, the far view's shade is far from every anchor point: the
+    // symmetric filter drops the view and the box stops at the foot.
+    let whole = fuse(false);
+    let d = &whole.fusion.views[0];
+    assert!(
+        !d.kept && d.chamfer.is_some_and(|c| c > params.chamfer_threshold),
+        "{d:?}"
+    );
+    // Taken as the part it is, the anchor lies on the far view's points: the view is kept
+    // and the box reaches the shade.
+    let part = fuse(seen.partial);
+    let d = &part.fusion.views[0];
+    assert!(
+        d.kept && d.cover.is_some_and(|c| c <= params.chamfer_cover_threshold),
+        "{d:?}"
+    );
+    let b = part.fusion.aabb.expect("a box");
+    assert!(b.max[2] > 1.5 && b.max[0] - b.min[0] > 0.3, "{b:?}");
+}
+
+#[test]
+fn a_part_does_not_take_a_view_of_the_object_beside_it() {
+    let mut parts = floor_lamp();
+    // A second lamp 0.9 m to the side; the view's mask is that lamp.
+    for p in floor_lamp().into_iter().skip(1) {
+        parts.push((
+            [p.0[0] + 0.9, p.0[1], p.0[2]],
+            [p.1[0] + 0.9, p.1[1], p.1[2]],
+            4,
+        ));
+    }
+    let params = GeometryParams::default();
+    let anchor_cam = camera([0.0, -0.8, 0.3], [0.0, 0.0, 0.3]);
+    let far_cam = camera([2.2, -2.2, 1.2], [0.4, 0.0, 0.8]);
+    let (anchor_depth, anchor_ids) = render(&anchor_cam, &parts);
+    let (far_depth, far_ids) = render(&far_cam, &parts);
+    let anchor_mask = mask_of(&anchor_ids, 160, 120, LAMP);
+    let other_mask = mask_of(&far_ids, 160, 120, 4);
+    let anchor_pts = mask_points(&anchor_mask, &anchor_cam, &anchor_depth, &params).unwrap();
+    let other_pts = mask_points(&other_mask, &far_cam, &far_depth, &params).unwrap();
+    let anchor = SegmentedView {
+        index: 0,
+        camera: &anchor_cam,
+        depth: &anchor_depth,
+        mask: &anchor_mask,
+        points: &anchor_pts,
+        region: None,
+        partial: true,
+    };
+    let other = SegmentedView {
+        index: 1,
+        camera: &far_cam,
+        depth: &far_depth,
+        mask: &other_mask,
+        points: &other_pts,
+        region: None,
+        partial: false,
+    };
+    let frames = [(&anchor_cam, &anchor_depth), (&far_cam, &far_depth)];
+    let out = fuse_segmented(anchor, &[other], &frames, &params);
+    let d = &out.fusion.views[0];
+    assert!(!d.kept && d.cover.is_some_and(|c| c > 0.5), "{d:?}");
+    let b = out.fusion.aabb.expect("a box");
+    assert!(b.max[0] < 0.3, "{b:?}");
 }

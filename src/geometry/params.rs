@@ -46,6 +46,12 @@ pub struct GeometryParams {
     pub chamfer_threshold: f64,
     /// Voxel size (m) applied to both clouds before the chamfer distance (0 = off).
     pub chamfer_voxel: f64,
+    /// When the chosen view saw only part of its object (`geometry::partial_view`), a view
+    /// also passes the chamfer filter when the anchor-to-view term alone is within this
+    /// (m^2): a view that sees the rest of the object is far from the anchor in the other
+    /// direction only. The paper's 0.1, applied to the one direction a part can speak for
+    /// (ours; 0 = off, the paper's symmetric filter only).
+    pub chamfer_cover_threshold: f64,
     /// Voxel size (m) applied to the fused union before outlier removal (0 = off).
     pub fusion_voxel: f64,
     /// Cost bound: when the union still has more points than this after `fusion_voxel`,
@@ -100,6 +106,7 @@ impl Default for GeometryParams {
             max_probe_points: 4000,
             chamfer_threshold: 0.5,
             chamfer_voxel: 0.02,
+            chamfer_cover_threshold: 0.1,
             fusion_voxel: 0.01,
             max_fused_points: 30_000,
             plane_iqr: 0.0,

@@ -181,5 +181,6 @@ pub(crate) fn segmented_view<'a>(
         mask,
         points: &[],
         region: None,
+        partial: false,
     }
 }
