@@ -23,8 +23,14 @@
 //! 6. **on tops**: an object standing on a level top of its region (a box on a table of
 //!    its colour, a lamp on a nightstand), split from it by height (`tops`), and each
 //!    colour of it (two pillows side by side on a bed);
-//! 7. **on walls**: wall cells joined by colour. The largest region of each wall is the
-//!    wall; the others (pictures, windows, doors, boards) are candidates.
+//! 7. **on walls**: wall cells joined by colour, with the free cells of a colour other than
+//!    the wall's that touch them, of objects that lie within twice the structure margin of
+//!    that wall as a whole (a window standing out past the margin in part; not a chair's
+//!    back against the wall, whose seat stands out). On a wall every point faces the same way, so
+//!    its light differs little: a cell more than `wall_brightness` times brighter or darker
+//!    than the wall is not the wall, whatever its hue (a black window on a grey wall). The
+//!    largest region of each wall is the wall; the others (pictures, windows, doors,
+//!    boards) are candidates.
 //!
 //! Regions smaller than `min_cells` or larger than `max_extent` along any axis (what is left
 //! of the room) are dropped; near-duplicates (box IoU above `dedupe_iou`) keep the larger.
@@ -68,6 +74,10 @@ pub struct CandidateParams {
     /// Colour tolerance of parts and wall regions (the depth segmenter's hue rule, tighter
     /// than the segmenter's 60: brown against a grey wall is within 60).
     pub colour_tol: f64,
+    /// On a wall, a cell this many times brighter or darker than the wall's colour is not
+    /// the wall, whatever its hue (the hue rule allows a factor of 4 for faces turned from
+    /// the light, and a wall's cells all face one way).
+    pub wall_brightness: f64,
     /// A colour part must hold at least this share of its object's cells.
     pub min_part: f64,
     /// Depth step (m) across which touching object regions form a group...
@@ -160,6 +170,7 @@ impl Default for CandidateParams {
             min_cells: 20,
             max_extent: 3.0,
             colour_tol: 30.0,
+            wall_brightness: 2.0,
             min_part: 0.02,
             group_step: 0.25,
             group_per_m: 0.05,
@@ -190,7 +201,7 @@ impl Default for CandidateParams {
 /// Version of what [`frame_candidates`] computes from the same frame and settings. Raise it
 /// with every change to its output: cached candidates of another version are not read
 /// (they are computed again where a job needs them, and replaced at the next indexing).
-pub const ALGORITHM_VERSION: u32 = 3;
+pub const ALGORITHM_VERSION: u32 = 4;
 
 /// Settings of [`CandidateParams`] that decide how the candidates are used, not which are
 /// found: changing them keeps the cache.
@@ -435,11 +446,32 @@ pub fn frame_candidates(
         // The wall's own colour is the one most of its cells have; what differs from it
         // and hangs together is on the wall.
         let wall = dominant_colour(&g, &on);
-        let off: Vec<usize> = on
-            .iter()
-            .copied()
-            .filter(|&i| !same_hue(&wall, &g.rgb[i], p.colour_tol))
-            .collect();
+        let off_colour = |i: usize| {
+            let c = &g.rgb[i];
+            let (sw, sc) = (
+                wall.iter().sum::<f64>(),
+                c.iter().map(|&v| f64::from(v)).sum::<f64>(),
+            );
+            !same_hue(&wall, c, p.colour_tol)
+                || sc > p.wall_brightness * sw
+                || sw > p.wall_brightness * sc
+        };
+        let mut off: Vec<usize> = on.iter().copied().filter(|&i| off_colour(i)).collect();
+        if let Some(l) = layout {
+            let margin = |i: usize| p.structure_margin + p.structure_per_m * g.z[i];
+            let by_wall = |i: usize| {
+                l.nearest_side(&g.pts[i])
+                    .is_some_and(|(s, d)| s == usize::from(side) && d < 2.0 * margin(i))
+            };
+            // Only an object that is flat on the wall as a whole: the back of a chair
+            // standing against it is as near, and its seat is not.
+            let flat: Vec<bool> = object_regions
+                .iter()
+                .map(|r| r.iter().all(|&i| by_wall(i)))
+                .collect();
+            let flat_on = |i: usize| object_of[i] != usize::MAX && flat[object_of[i]];
+            off = straddling(&g, off, |a, b| near(a, b) && off_colour(b) && flat_on(b));
+        }
         for r in opened_components(&g, &off) {
             if r.len() >= p.min_cells && r.len() * 10 < on.len() * 6 {
                 let c = to_candidate(&g, &r, CandidateKind::OnWall, dims);
@@ -463,6 +495,40 @@ pub fn frame_candidates(
         }
     }
     kept
+}
+
+/// `seed` (off-colour cells of one wall) grown over the free cells that `joins(from, to)`
+/// admits: a flat object on a wall that stands out past the structure margin (a window's
+/// frame, a door's leaf, a board) has cells on both sides of it, and sensor noise decides
+/// which; the cells past the margin belong to it as much as those within.
+fn straddling(
+    g: &grid::Grid,
+    seed: Vec<usize>,
+    joins: impl Fn(usize, usize) -> bool,
+) -> Vec<usize> {
+    let mut member = vec![false; g.w * g.h];
+    for &i in &seed {
+        member[i] = true;
+    }
+    let mut out = seed.clone();
+    let mut queue: std::collections::VecDeque<usize> = seed.into();
+    while let Some(i) = queue.pop_front() {
+        let (x, y) = (i % g.w, i / g.w);
+        let next = [
+            (x > 0).then(|| i - 1),
+            (x + 1 < g.w).then(|| i + 1),
+            (y > 0).then(|| i - g.w),
+            (y + 1 < g.h).then(|| i + g.w),
+        ];
+        for j in next.into_iter().flatten() {
+            if !member[j] && g.kind[j] == Cell::Free && joins(i, j) {
+                member[j] = true;
+                out.push(j);
+                queue.push_back(j);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -190,6 +190,62 @@ fn a_picture_on_a_wall_is_a_candidate() {
 }
 
 #[test]
+fn a_window_standing_out_past_the_structure_margin_is_one_candidate() {
+    let mut parts = room();
+    // A brown 1 x 1 m window in the wall at y = 4: its upper panel 5 cm proud of the wall
+    // (within the structure margin at 3.5 m, 7.5 cm), its lower panel and sill 10 cm (past
+    // it). The window is one object on the wall.
+    let brown = [120, 80, 40];
+    parts.push(part([1.5, 3.95, 1.5], [2.5, 4.0, 2.0], brown, 9));
+    parts.push(part([1.5, 3.9, 1.0], [2.5, 4.0, 1.5], brown, 9));
+    let cam = camera([2.0, 0.5, 1.4], [2.0, 4.0, 1.4]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 9);
+    let c = best(&cands, &truth).expect("some candidate");
+    assert!(
+        box_iou(&c.bbox, &truth) > 0.8 && c.kind == CandidateKind::OnWall,
+        "{c:?} against {truth:?}; all: {cands:?}"
+    );
+}
+
+#[test]
+fn a_board_on_the_wall_does_not_take_the_top_of_the_cabinet_below_it() {
+    let mut parts = room();
+    // A green cabinet 20 cm deep against the wall at y = 4, and a green board on the
+    // wall just above it. The cabinet's top near the wall lies within twice the structure
+    // margin of the wall, but the cabinet as a whole stands out from it.
+    let green = [40, 160, 60];
+    parts.push(part([1.6, 3.8, 0.0], [2.4, 4.0, 1.0], green, 8));
+    parts.push(part([1.6, 3.98, 1.0], [2.4, 4.0, 1.4], green, 9));
+    let cam = camera([2.0, 2.8, 2.4], [2.0, 4.0, 1.0]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 9);
+    let c = cands
+        .iter()
+        .filter(|c| c.kind == CandidateKind::OnWall)
+        .max_by(|a, b| box_iou(&a.bbox, &truth).total_cmp(&box_iou(&b.bbox, &truth)))
+        .expect("an on-wall candidate");
+    assert!(box_iou(&c.bbox, &truth) > 0.7, "{c:?} against {truth:?}");
+    assert!(c.min[1] > 3.9, "the board reaches onto the cabinet: {c:?}");
+}
+
+#[test]
+fn a_dark_grey_board_on_a_grey_wall_is_a_candidate() {
+    let mut parts = room();
+    // Neutral like the wall (150 grey), a third as bright: the hue rule alone, which
+    // allows a factor of 4 for shading, takes it for the wall.
+    parts.push(part([1.6, 3.98, 1.1], [2.4, 4.0, 1.7], [45, 45, 45], 9));
+    let cam = camera([2.0, 1.5, 1.4], [2.0, 4.0, 1.4]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 9);
+    let c = best(&cands, &truth).expect("some candidate");
+    assert!(
+        box_iou(&c.bbox, &truth) > 0.8 && c.kind == CandidateKind::OnWall,
+        "{c:?} against {truth:?}"
+    );
+}
+
+#[test]
 fn a_lamp_grouped_with_a_cabinet_behind_it_is_a_candidate_of_its_own() {
     // The lamp of the first test (a shade before its pole), and a cabinet 25 cm behind
     // the shade that its right edge touches in the image: the three are one group, and
