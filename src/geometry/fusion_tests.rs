@@ -161,59 +161,71 @@ fn floor_lamp() -> Vec<Part> {
     ]
 }
 
+/// One rendered view of `parts`: the mask of instance `id` and its points.
+struct Shot {
+    cam: FrameCamera,
+    depth: DepthMap,
+    mask: Mask,
+    pts: Vec<Point3<f64>>,
+}
+
+fn shot(eye: [f64; 3], target: [f64; 3], parts: &[Part], id: u16, p: &GeometryParams) -> Shot {
+    let cam = camera(eye, target);
+    let (depth, ids) = render(&cam, parts);
+    let mask = mask_of(&ids, 160, 120, id);
+    let pts = mask_points(&mask, &cam, &depth, p).unwrap();
+    Shot {
+        cam,
+        depth,
+        mask,
+        pts,
+    }
+}
+
+impl Shot {
+    fn view(&self, index: usize, partial: bool) -> SegmentedView<'_> {
+        SegmentedView {
+            index,
+            camera: &self.cam,
+            depth: &self.depth,
+            mask: &self.mask,
+            points: &self.pts,
+            region: None,
+            partial,
+        }
+    }
+}
+
+/// [`fuse_segmented`] of `anchor` (seen whole or in part) with the one view `other`.
+fn fuse_pair(anchor: &Shot, other: &Shot, partial: bool, p: &GeometryParams) -> VotedFusion {
+    let frames = [(&anchor.cam, &anchor.depth), (&other.cam, &other.depth)];
+    fuse_segmented(anchor.view(0, partial), &[other.view(1, false)], &frames, p)
+}
+
 #[test]
 fn a_close_up_of_a_lamps_foot_keeps_the_view_that_sees_its_shade() {
     use crate::geometry::{partial_view, PartialParams};
     let parts = floor_lamp();
     let params = GeometryParams::default();
     // The chosen view: low and near, the image's top edge cuts the pole.
-    let anchor_cam = camera([0.0, -0.8, 0.3], [0.0, 0.0, 0.3]);
+    let anchor = shot([0.0, -0.8, 0.3], [0.0, 0.0, 0.3], &parts, LAMP, &params);
     // Another view, from across the room: the whole lamp.
-    let far_cam = camera([2.2, -2.2, 1.2], [0.0, 0.0, 0.8]);
-    let (anchor_depth, anchor_ids) = render(&anchor_cam, &parts);
-    let (far_depth, far_ids) = render(&far_cam, &parts);
-    let anchor_mask = mask_of(&anchor_ids, 160, 120, LAMP);
-    let far_mask = mask_of(&far_ids, 160, 120, LAMP);
-    let anchor_pts = mask_points(&anchor_mask, &anchor_cam, &anchor_depth, &params).unwrap();
-    let far_pts = mask_points(&far_mask, &far_cam, &far_depth, &params).unwrap();
-    let alone = Aabb::from_points(&anchor_pts).unwrap();
+    let far = shot([2.2, -2.2, 1.2], [0.0, 0.0, 0.8], &parts, LAMP, &params);
+    let alone = Aabb::from_points(&anchor.pts).unwrap();
     assert!(
         alone.max[2] < 0.8,
         "the chosen view sees the foot: {alone:?}"
     );
     let seen = partial_view(
-        &anchor_mask,
-        &anchor_cam,
-        &anchor_depth,
+        &anchor.mask,
+        &anchor.cam,
+        &anchor.depth,
         &PartialParams::default(),
     );
     assert!(seen.border && seen.partial, "{seen:?}");
-
-    let fuse = |partial: bool| {
-        let anchor = SegmentedView {
-            index: 0,
-            camera: &anchor_cam,
-            depth: &anchor_depth,
-            mask: &anchor_mask,
-            points: &anchor_pts,
-            region: None,
-            partial,
-        };
-        let far = SegmentedView {
-            index: 1,
-            camera: &far_cam,
-            depth: &far_depth,
-            mask: &far_mask,
-            points: &far_pts,
-            region: None,
-            partial: false,
-        };
-        let frames = [(&anchor_cam, &anchor_depth), (&far_cam, &far_depth)];
-        fuse_segmented(anchor, &[far], &frames, &params)
-    };
     // Taken as a whole object, the far view's shade is far from every anchor point: the
     // symmetric filter drops the view and the box stops at the foot.
-    let whole = fuse(false);
+    let whole = fuse_pair(&anchor, &far, false, &params);
     let d = &whole.fusion.views[0];
     assert!(
         !d.kept && d.chamfer.is_some_and(|c| c > params.chamfer_threshold),
@@ -221,7 +233,7 @@ fn a_close_up_of_a_lamps_foot_keeps_the_view_that_sees_its_shade() {
     );
     // Taken as the part it is, the anchor lies on the far view's points: the view is kept
     // and the box reaches the shade.
-    let part = fuse(seen.partial);
+    let part = fuse_pair(&anchor, &far, seen.partial, &params);
     let d = &part.fusion.views[0];
     assert!(
         d.kept && d.cover.is_some_and(|c| c <= params.chamfer_cover_threshold),
@@ -243,34 +255,9 @@ fn a_part_does_not_take_a_view_of_the_object_beside_it() {
         ));
     }
     let params = GeometryParams::default();
-    let anchor_cam = camera([0.0, -0.8, 0.3], [0.0, 0.0, 0.3]);
-    let far_cam = camera([2.2, -2.2, 1.2], [0.4, 0.0, 0.8]);
-    let (anchor_depth, anchor_ids) = render(&anchor_cam, &parts);
-    let (far_depth, far_ids) = render(&far_cam, &parts);
-    let anchor_mask = mask_of(&anchor_ids, 160, 120, LAMP);
-    let other_mask = mask_of(&far_ids, 160, 120, 4);
-    let anchor_pts = mask_points(&anchor_mask, &anchor_cam, &anchor_depth, &params).unwrap();
-    let other_pts = mask_points(&other_mask, &far_cam, &far_depth, &params).unwrap();
-    let anchor = SegmentedView {
-        index: 0,
-        camera: &anchor_cam,
-        depth: &anchor_depth,
-        mask: &anchor_mask,
-        points: &anchor_pts,
-        region: None,
-        partial: true,
-    };
-    let other = SegmentedView {
-        index: 1,
-        camera: &far_cam,
-        depth: &far_depth,
-        mask: &other_mask,
-        points: &other_pts,
-        region: None,
-        partial: false,
-    };
-    let frames = [(&anchor_cam, &anchor_depth), (&far_cam, &far_depth)];
-    let out = fuse_segmented(anchor, &[other], &frames, &params);
+    let anchor = shot([0.0, -0.8, 0.3], [0.0, 0.0, 0.3], &parts, LAMP, &params);
+    let other = shot([2.2, -2.2, 1.2], [0.4, 0.0, 0.8], &parts, 4, &params);
+    let out = fuse_pair(&anchor, &other, true, &params);
     let d = &out.fusion.views[0];
     assert!(!d.kept && d.cover.is_some_and(|c| c > 0.5), "{d:?}");
     let b = out.fusion.aabb.expect("a box");

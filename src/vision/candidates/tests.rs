@@ -115,6 +115,14 @@ fn best<'a>(cands: &'a [Candidate], truth: &[f32; 4]) -> Option<&'a Candidate> {
         .max_by(|a, b| box_iou(&a.bbox, truth).total_cmp(&box_iou(&b.bbox, truth)))
 }
 
+/// The candidate that best overlaps instance `id`, and the instance's box.
+fn best_for(cam: &FrameCamera, parts: &[Part], id: u16) -> (Candidate, [f32; 4]) {
+    let (cands, ids) = run(cam, parts);
+    let truth = truth_box(&ids, cam.color.width, id);
+    let c = best(&cands, &truth).cloned().expect("some candidate");
+    (c, truth)
+}
+
 fn run(cam: &FrameCamera, parts: &[Part]) -> (Vec<Candidate>, Vec<u16>) {
     let (depth, img, ids) = render(cam, parts);
     let c = frame_candidates(
@@ -180,9 +188,7 @@ fn a_picture_on_a_wall_is_a_candidate() {
     // A 60 x 40 cm picture 2 cm proud of the wall at y = 4, green.
     parts.push(part([1.7, 3.98, 1.2], [2.3, 4.0, 1.6], [40, 160, 60], 9));
     let cam = camera([2.0, 1.5, 1.4], [2.0, 4.0, 1.4]);
-    let (cands, ids) = run(&cam, &parts);
-    let truth = truth_box(&ids, 320, 9);
-    let c = best(&cands, &truth).expect("some candidate");
+    let (c, truth) = best_for(&cam, &parts, 9);
     assert!(
         box_iou(&c.bbox, &truth) > 0.7 && c.kind == CandidateKind::OnWall,
         "{c:?} against {truth:?}"
@@ -199,12 +205,10 @@ fn a_window_standing_out_past_the_structure_margin_is_one_candidate() {
     parts.push(part([1.5, 3.95, 1.5], [2.5, 4.0, 2.0], brown, 9));
     parts.push(part([1.5, 3.9, 1.0], [2.5, 4.0, 1.5], brown, 9));
     let cam = camera([2.0, 0.5, 1.4], [2.0, 4.0, 1.4]);
-    let (cands, ids) = run(&cam, &parts);
-    let truth = truth_box(&ids, 320, 9);
-    let c = best(&cands, &truth).expect("some candidate");
+    let (c, truth) = best_for(&cam, &parts, 9);
     assert!(
         box_iou(&c.bbox, &truth) > 0.8 && c.kind == CandidateKind::OnWall,
-        "{c:?} against {truth:?}; all: {cands:?}"
+        "{c:?} against {truth:?}"
     );
 }
 
@@ -236,9 +240,7 @@ fn a_dark_grey_board_on_a_grey_wall_is_a_candidate() {
     // allows a factor of 4 for shading, takes it for the wall.
     parts.push(part([1.6, 3.98, 1.1], [2.4, 4.0, 1.7], [45, 45, 45], 9));
     let cam = camera([2.0, 1.5, 1.4], [2.0, 4.0, 1.4]);
-    let (cands, ids) = run(&cam, &parts);
-    let truth = truth_box(&ids, 320, 9);
-    let c = best(&cands, &truth).expect("some candidate");
+    let (c, truth) = best_for(&cam, &parts, 9);
     assert!(
         box_iou(&c.bbox, &truth) > 0.8 && c.kind == CandidateKind::OnWall,
         "{c:?} against {truth:?}"
