@@ -199,6 +199,8 @@ pub(super) fn check_candidates(
         .iter()
         .map(|(i, _, c)| (*i, c.as_ref().map_or(&[][..], |(c, _)| &c.points[..])))
         .collect();
+    // Symmetric, though the anchor is a part here: the one-sided test would pass the
+    // region that holds the object with its neighbour, which is what this check is for.
     let decisions = chamfer_decisions(anchor, &clouds, false, &vs.params);
     let mut kept = HashMap::new();
     let mut trace = Vec::new();
