@@ -195,8 +195,7 @@ pub fn fuse_views(
 /// voxel-downsampled by `params.chamfer_voxel`, and whether it passes the threshold. When
 /// the anchor saw only part of its object (`anchor_partial`), a view also passes when its
 /// anchor-to-view term alone is within `params.chamfer_cover_threshold`: it holds what the
-/// anchor saw, and what lies beyond is the rest of the
-/// object the anchor could not see, not a reason to drop the view.
+/// anchor saw, and what it holds beyond is the rest of the object, not a reason to drop it.
 pub fn chamfer_decisions<P: AsRef<[Point3<f64>]>>(
     anchor: &[Point3<f64>],
     others: &[(usize, P)],
