@@ -26,11 +26,11 @@
 //! 7. **on walls**: wall cells joined by colour, with the free cells of a colour other than
 //!    the wall's that touch them, of objects that lie within twice the structure margin of
 //!    that wall as a whole (a window standing out past the margin in part; not a chair's
-//!    back against the wall, whose seat stands out). On a wall every point faces the same way, so
-//!    its light differs little: a cell more than `wall_brightness` times brighter or darker
-//!    than the wall is not the wall, whatever its hue (a black window on a grey wall). The
-//!    largest region of each wall is the wall; the others (pictures, windows, doors,
-//!    boards) are candidates.
+//!    back against the wall, whose seat stands out). A wall's cells all face one way, so
+//!    its light differs little: a cell more than `wall_brightness` times brighter or
+//!    darker than the wall is not the wall, whatever its hue (a black window on a grey
+//!    wall). The largest region of each wall is the wall; the others (pictures, windows,
+//!    doors, boards) are candidates.
 //!
 //! Regions smaller than `min_cells` or larger than `max_extent` along any axis (what is left
 //! of the room) are dropped; near-duplicates (box IoU above `dedupe_iou`) keep the larger.
