@@ -225,6 +225,19 @@ pub(super) fn dominant_colour(g: &Grid, cells: &[usize]) -> [f64; 3] {
     sum.map(|v| v / f64::max(n, 1.0))
 }
 
+impl Grid {
+    /// The 4-neighbours of cell `i` (left, right, above, below; `None` past the grid's edge).
+    pub(super) fn neighbours(&self, i: usize) -> [Option<usize>; 4] {
+        let (x, y) = (i % self.w, i / self.w);
+        [
+            (x > 0).then(|| i - 1),
+            (x + 1 < self.w).then(|| i + 1),
+            (y > 0).then(|| i - self.w),
+            (y + 1 < self.h).then(|| i + self.w),
+        ]
+    }
+}
+
 /// The 4-connected components of the cells `set`.
 pub(super) fn components(g: &Grid, set: &[usize]) -> Vec<Vec<usize>> {
     let mut member = vec![false; g.w * g.h];
@@ -240,24 +253,11 @@ pub(super) fn components(g: &Grid, set: &[usize]) -> Vec<Vec<usize>> {
         let (mut comp, mut stack) = (Vec::new(), vec![start]);
         while let Some(i) = stack.pop() {
             comp.push(i);
-            let (x, y) = (i % g.w, i / g.w);
-            let mut visit = |j: usize| {
+            for j in g.neighbours(i).into_iter().flatten() {
                 if member[j] {
                     member[j] = false;
                     stack.push(j);
                 }
-            };
-            if x > 0 {
-                visit(i - 1);
-            }
-            if x + 1 < g.w {
-                visit(i + 1);
-            }
-            if y > 0 {
-                visit(i - g.w);
-            }
-            if y + 1 < g.h {
-                visit(i + g.w);
             }
         }
         out.push(comp);
@@ -275,19 +275,10 @@ pub(super) fn opened_components(g: &Grid, set: &[usize]) -> Vec<Vec<usize>> {
     for &i in set {
         member[i] = true;
     }
-    let neighbours = |i: usize| {
-        let (x, y) = (i % g.w, i / g.w);
-        [
-            (x > 0).then(|| i - 1),
-            (x + 1 < g.w).then(|| i + 1),
-            (y > 0).then(|| i - g.w),
-            (y + 1 < g.h).then(|| i + g.w),
-        ]
-    };
     let core: Vec<usize> = set
         .iter()
         .copied()
-        .filter(|&i| neighbours(i).iter().all(|j| j.is_some_and(|j| member[j])))
+        .filter(|&i| g.neighbours(i).iter().all(|j| j.is_some_and(|j| member[j])))
         .collect();
     let mut comps = components(g, &core);
     let mut label = vec![usize::MAX; n];
@@ -297,7 +288,8 @@ pub(super) fn opened_components(g: &Grid, set: &[usize]) -> Vec<Vec<usize>> {
         }
     }
     for &i in set.iter().filter(|&&i| label[i] == usize::MAX) {
-        if let Some(k) = neighbours(i)
+        if let Some(k) = g
+            .neighbours(i)
             .iter()
             .flatten()
             .map(|&j| label[j])

@@ -446,12 +446,10 @@ pub fn frame_candidates(
         // The wall's own colour is the one most of its cells have; what differs from it
         // and hangs together is on the wall.
         let wall = dominant_colour(&g, &on);
+        let sw = wall.iter().sum::<f64>();
         let off_colour = |i: usize| {
             let c = &g.rgb[i];
-            let (sw, sc) = (
-                wall.iter().sum::<f64>(),
-                c.iter().map(|&v| f64::from(v)).sum::<f64>(),
-            );
+            let sc = c.iter().map(|&v| f64::from(v)).sum::<f64>();
             !same_hue(&wall, c, p.colour_tol)
                 || sc > p.wall_brightness * sw
                 || sw > p.wall_brightness * sc
@@ -513,14 +511,7 @@ fn straddling(
     let mut out = seed.clone();
     let mut queue: std::collections::VecDeque<usize> = seed.into();
     while let Some(i) = queue.pop_front() {
-        let (x, y) = (i % g.w, i / g.w);
-        let next = [
-            (x > 0).then(|| i - 1),
-            (x + 1 < g.w).then(|| i + 1),
-            (y > 0).then(|| i - g.w),
-            (y + 1 < g.h).then(|| i + g.w),
-        ];
-        for j in next.into_iter().flatten() {
+        for j in g.neighbours(i).into_iter().flatten() {
             if !member[j] && g.kind[j] == Cell::Free && joins(i, j) {
                 member[j] = true;
                 out.push(j);
