@@ -28,7 +28,9 @@ use crate::geometry::ensemble::{find_views_with_room, single_view_box, Candidate
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::round_back::round_back;
 use crate::geometry::support::{extend_to_support, median_point};
-use crate::geometry::{partial_view, snap_planar_to_wall, Aabb, LayoutParams, Mask, RoomLayout};
+use crate::geometry::{
+    partial_view, snap_planar_to_wall, view_bound, Aabb, LayoutParams, Mask, RoomLayout,
+};
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::CallBudget;
 
@@ -258,6 +260,9 @@ pub async fn run(
         cut_walls,
         walls: walls.clone(),
     };
+    // The chosen box, when drawn on the image (not a candidate's), and what it bounds.
+    let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
+    let (bound_occluded, bound_edge) = (cp.partial.min_occluded, cp.partial.border_frac);
     // A view's candidate must agree with the chosen view before it is used.
     let tc = Instant::now();
     let has_candidate = view_boxes.iter().any(|v| v.2 == BoxFrom::Candidate);
@@ -265,8 +270,14 @@ pub async fn run(
         let footprints: Vec<(usize, [f32; 4])> = views.iter().map(|v| (v.index, v.bbox)).collect();
         let (vs, ap) = (vseg.clone(), anchor_pts.clone());
         let mut vbs = view_boxes.clone();
+        let anchor_idx = choice.frame_idx;
         let (checked, trace, vbs, decoded) = tokio::task::spawn_blocking(move || {
-            let (checked, trace) = check_candidates(&vs, &ap, &footprints, &mut vbs, &decoded);
+            let cam = &vs.scene.frames[anchor_idx].camera;
+            let (o, e) = (bound_occluded, bound_edge);
+            let bound =
+                anchor_box.and_then(|b| view_bound(cam, b, &anchor_partial, o, e, &vs.params));
+            let anchor = (&ap[..], bound.as_ref());
+            let (checked, trace) = check_candidates(&vs, anchor, &footprints, &mut vbs, &decoded);
             (checked, trace, vbs, decoded)
         })
         .await
@@ -308,8 +319,7 @@ pub async fn run(
     let anchor_image = choice.image.clone();
     let trace = ctx.trace.clone();
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
-    // The chosen box, when drawn on the image (not a candidate's), and the room's floor.
-    let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
+    // The room's floor.
     let sp = &g.params.geometry.support;
     let floor = if down && sp.enabled && sp.floor_reach && g.params.geometry.layout.enabled {
         match &walls {
@@ -354,6 +364,12 @@ pub async fn run(
             let segment_ms = ms(ts);
             let tf = Instant::now();
             let af = &sc.frames[anchor_idx];
+            // The box drawn on the chosen image (not a candidate's, which may be a part)
+            // bounds what the other views may add.
+            let bound = anchor_box.and_then(|b| {
+                let (o, e) = (bound_occluded, bound_edge);
+                view_bound(&af.camera, b, &anchor_partial, o, e, params)
+            });
             let anchor_view = SegmentedView {
                 index: anchor_idx,
                 camera: &af.camera,
@@ -362,6 +378,7 @@ pub async fn run(
                 points: &anchor_pts,
                 region: None,
                 partial,
+                bound,
             };
             // A view that segmented only the reprojected part of a partly seen object
             // votes only inside that box.
@@ -378,6 +395,7 @@ pub async fn run(
                     points: &c.points,
                     region: region(*i),
                     partial: false,
+                    bound: None,
                 })
                 .collect();
             let frames: Vec<_> = sc

@@ -11,6 +11,7 @@ use nalgebra::Point3;
 use serde_json::json;
 
 use super::ensemble_boxes::BoxFrom;
+use crate::geometry::bound::{within_bound, ViewBound};
 use crate::geometry::ensemble::{chamfer_decisions, mask_points};
 use crate::geometry::export::point_colours;
 use crate::geometry::support::context_points;
@@ -172,7 +173,8 @@ impl ViewSegmenter {
 }
 
 /// The views whose box is a class-agnostic candidate, segmented and compared with the
-/// chosen view's points (`anchor`) by the fusion's chamfer filter before the box is used.
+/// chosen view's points (`anchor`) by the fusion's chamfer filter before the box is used,
+/// within the chosen box's `bound` as the fusion compares them.
 /// A candidate can be a region that holds the object together with what touches it (a
 /// chair behind a bed of a like colour): its points then lie far from the anchor's, the
 /// fusion would drop the view, and the view is lost. Such a view takes its footprint's box
@@ -181,7 +183,7 @@ impl ViewSegmenter {
 /// what was checked for the trace.
 pub(super) fn check_candidates(
     vs: &ViewSegmenter,
-    anchor: &[Point3<f64>],
+    (anchor, bound): (&[Point3<f64>], Option<&ViewBound<'_>>),
     footprints: &[(usize, [f32; 4])],
     view_boxes: &mut [(usize, [f32; 4], BoxFrom)],
     decoded: &HashMap<usize, Arc<RgbImage>>,
@@ -195,9 +197,16 @@ pub(super) fn check_candidates(
             Some((i, b, vs.segment(i, b, img)))
         })
         .collect();
-    let clouds: Vec<(usize, &[Point3<f64>])> = segmented
+    // Judged on what the fusion would take from it: the points the chosen box allows.
+    let clouds: Vec<(usize, Vec<Point3<f64>>)> = segmented
         .iter()
-        .map(|(i, _, c)| (*i, c.as_ref().map_or(&[][..], |(c, _)| &c.points[..])))
+        .map(|(i, _, c)| {
+            let pts = c.as_ref().map_or(&[][..], |(c, _)| &c.points[..]);
+            (
+                *i,
+                bound.map_or_else(|| pts.to_vec(), |b| within_bound(pts, b)),
+            )
+        })
         .collect();
     // Symmetric, though the anchor is a part here: the one-sided test would pass the
     // region that holds the object with its neighbour, which is what this check is for.

@@ -44,6 +44,13 @@ pub struct ConsensusParams {
     /// inside that box ([`MaskView::region`]): it cannot speak against the rest of the
     /// object that another view's box holds.
     pub footprints_vote_inside: bool,
+    /// The box drawn on the chosen image bounds its object when nothing hides part of it
+    /// there: the other views' points that project outside it are dropped before the
+    /// chamfer test (`geometry::bound`).
+    pub anchor_box_bound: bool,
+    /// ...widened by this share of the box's width and height on each side (a detector's
+    /// or the VLM's box is a little tight or loose), and by the votes' pose tolerance.
+    pub anchor_box_margin: f64,
     /// Run [`free_space_votes`] on the fused cloud with every usable frame.
     pub free_space: bool,
     /// Frames that must see past a point before it can be dropped.
@@ -60,6 +67,8 @@ impl Default for ConsensusParams {
             mask_dilate: 15,
             anchor_veto: true,
             footprints_vote_inside: true,
+            anchor_box_bound: true,
+            anchor_box_margin: 0.1,
             free_space: true,
             min_seen_through: 2,
             max_carve_frames: 20,
@@ -316,6 +325,12 @@ fn sees_box(p: &Probe<'_>, b: &Aabb) -> bool {
         }
     }
     in_front > 0 && u1 >= 0.0 && v1 >= 0.0 && u0 < w && v0 < h
+}
+
+/// Pixels (in an image `width` wide) by which [`mask_votes`] lets a point miss a mask, for
+/// pose error and mask borders.
+pub(crate) fn pose_tolerance_px(params: &GeometryParams, width: u32) -> u32 {
+    scaled_kernel(params, params.consensus.mask_dilate, width) / 2
 }
 
 /// `kernel` (pixels at the reference width) scaled to a mask `width` pixels wide, odd.

@@ -1,11 +1,13 @@
 //! The multi-view fusion the agent runs on segmented views: the paper's chamfer filter
-//! ([`chamfer_decisions`]), then our consensus checks ([`mask_votes`] among the anchor and
-//! the kept views, [`free_space_votes`] on the union) and the box ([`fuse_clouds`]).
+//! ([`chamfer_decisions`], on the points the chosen view's box allows: [`super::bound`]),
+//! then our consensus checks ([`mask_votes`] among the anchor and the kept views,
+//! [`free_space_votes`] on the union) and the box ([`fuse_clouds`]).
 //! Pure: cameras, depth maps, masks and points in, points and a box out.
 
 use nalgebra::Point3;
 use serde::Serialize;
 
+use super::bound::{within_bound, ViewBound};
 use super::cloud::voxel_downsample;
 use super::consensus::{free_space_votes, mask_votes, retain, MaskView};
 use super::ensemble::{chamfer_decisions, fuse_clouds, FusionResult};
@@ -25,6 +27,9 @@ pub struct SegmentedView<'a> {
     /// The mask holds only part of its object (see [`super::partial_view`]); meaningful for
     /// the anchor, where it lets the chamfer filter keep views that see more.
     pub partial: bool,
+    /// Where the object can be at all (see [`super::bound`]); meaningful for the anchor,
+    /// whose box bounds the points the other views give.
+    pub bound: Option<ViewBound<'a>>,
 }
 
 /// What the mask votes did (for traces).
@@ -35,6 +40,9 @@ pub struct VoteStats {
     pub points_after: usize,
     pub anchor_before: usize,
     pub anchor_after: usize,
+    /// Points of the other views dropped, before the chamfer test, for projecting outside
+    /// the chosen view's box ([`SegmentedView::bound`]).
+    pub outside_anchor_box: usize,
 }
 
 /// The fusion and what led to it.
@@ -57,8 +65,18 @@ pub fn fuse_segmented(
     frames: &[(&FrameCamera, &DepthMap)],
     params: &GeometryParams,
 ) -> VotedFusion {
-    let other_pts: Vec<(usize, &[Point3<f64>])> =
-        others.iter().map(|v| (v.index, v.points)).collect();
+    // The other views' points that the chosen view's box rules out are not the object.
+    let bounded: Vec<Option<Vec<Point3<f64>>>> = others
+        .iter()
+        .map(|v| anchor.bound.as_ref().map(|b| within_bound(v.points, b)))
+        .collect();
+    let points_of = |k: usize| bounded[k].as_deref().unwrap_or(others[k].points);
+    let outside_anchor_box = (0..others.len())
+        .map(|k| others[k].points.len() - points_of(k).len())
+        .sum();
+    let other_pts: Vec<(usize, &[Point3<f64>])> = (0..others.len())
+        .map(|k| (others[k].index, points_of(k)))
+        .collect();
     let decisions = chamfer_decisions(anchor.points, &other_pts, anchor.partial, params);
     let mut voters = vec![MaskView {
         camera: anchor.camera,
@@ -67,7 +85,7 @@ pub fn fuse_segmented(
         region: anchor.region,
     }];
     let mut owned = vec![voxel_downsample(anchor.points, params.fusion_voxel)];
-    for (v, d) in others.iter().zip(&decisions) {
+    for (k, (v, d)) in others.iter().zip(&decisions).enumerate() {
         if d.kept {
             voters.push(MaskView {
                 camera: v.camera,
@@ -75,7 +93,7 @@ pub fn fuse_segmented(
                 mask: v.mask,
                 region: v.region,
             });
-            owned.push(voxel_downsample(v.points, params.fusion_voxel));
+            owned.push(voxel_downsample(points_of(k), params.fusion_voxel));
         }
     }
     let clouds: Vec<&[Point3<f64>]> = owned.iter().map(Vec::as_slice).collect();
@@ -94,6 +112,7 @@ pub fn fuse_segmented(
         points_after: voted.iter().map(Vec::len).sum(),
         anchor_before: clouds[0].len(),
         anchor_after: voted[0].len(),
+        outside_anchor_box,
     };
     let carve = |pts: &[Point3<f64>]| free_space_votes(pts, frames, params);
     let refs: Vec<&[Point3<f64>]> = voted.iter().map(Vec::as_slice).collect();

@@ -50,9 +50,13 @@ fn render(cam: &FrameCamera, parts: &[Part]) -> (DepthMap, Vec<u16>) {
 }
 
 fn mask_of(ids: &[u16], w: u32, h: u32, id: u16) -> Mask {
+    mask_of_any(ids, w, h, &[id])
+}
+
+fn mask_of_any(ids: &[u16], w: u32, h: u32, of: &[u16]) -> Mask {
     let mut m = Mask::new(w, h);
     for (i, &v) in ids.iter().enumerate() {
-        if v == id {
+        if of.contains(&v) {
             m.set(i as u32 % w, i as u32 / w, true);
         }
     }
@@ -121,6 +125,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         points: &anchor_pts,
         region: None,
         partial: false,
+        bound: None,
     };
     let side = SegmentedView {
         index: 1,
@@ -130,6 +135,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         points: &side_pts,
         region: None,
         partial: false,
+        bound: None,
     };
     let frames = [(&anchor_cam, &anchor_depth), (&side_cam, &side_depth)];
     let out = fuse_segmented(anchor, &[side], &frames, &params);
@@ -170,15 +176,38 @@ struct Shot {
 }
 
 fn shot(eye: [f64; 3], target: [f64; 3], parts: &[Part], id: u16, p: &GeometryParams) -> Shot {
+    shot_of(eye, target, parts, &[id], p)
+}
+
+/// [`shot`] whose mask holds every instance in `ids` (a region that merged them).
+fn shot_of(
+    eye: [f64; 3],
+    target: [f64; 3],
+    parts: &[Part],
+    ids: &[u16],
+    p: &GeometryParams,
+) -> Shot {
     let cam = camera(eye, target);
-    let (depth, ids) = render(&cam, parts);
-    let mask = mask_of(&ids, 160, 120, id);
+    let (depth, rendered) = render(&cam, parts);
+    let mask = mask_of_any(&rendered, 160, 120, ids);
     let pts = mask_points(&mask, &cam, &depth, p).unwrap();
     Shot {
         cam,
         depth,
         mask,
         pts,
+    }
+}
+
+impl Shot {
+    /// The bound the box of this view's mask puts on its object (as a detector or the VLM
+    /// would draw it: tight around what the view shows).
+    fn bound(&self, p: &GeometryParams) -> Option<crate::geometry::ViewBound<'_>> {
+        use crate::geometry::{partial_view, PartialParams};
+        let b = crate::geometry::morph::bounds(&self.mask, 0)?.map(|v| v as f32);
+        let pp = PartialParams::default();
+        let seen = partial_view(&self.mask, &self.cam, &self.depth, &pp);
+        crate::geometry::view_bound(&self.cam, b, &seen, pp.min_occluded, pp.border_frac, p)
     }
 }
 
@@ -192,14 +221,30 @@ impl Shot {
             points: &self.pts,
             region: None,
             partial,
+            bound: None,
         }
     }
 }
 
 /// [`fuse_segmented`] of `anchor` (seen whole or in part) with the one view `other`.
 fn fuse_pair(anchor: &Shot, other: &Shot, partial: bool, p: &GeometryParams) -> VotedFusion {
+    fuse_bounded(anchor, other, partial, None, p)
+}
+
+/// [`fuse_pair`] with the chosen view's `bound`.
+fn fuse_bounded(
+    anchor: &Shot,
+    other: &Shot,
+    partial: bool,
+    bound: Option<crate::geometry::ViewBound<'_>>,
+    p: &GeometryParams,
+) -> VotedFusion {
     let frames = [(&anchor.cam, &anchor.depth), (&other.cam, &other.depth)];
-    fuse_segmented(anchor.view(0, partial), &[other.view(1, false)], &frames, p)
+    let chosen = SegmentedView {
+        bound,
+        ..anchor.view(0, partial)
+    };
+    fuse_segmented(chosen, &[other.view(1, false)], &frames, p)
 }
 
 #[test]
@@ -262,4 +307,61 @@ fn a_part_does_not_take_a_view_of_the_object_beside_it() {
     assert!(!d.kept && d.cover.is_some_and(|c| c > 0.5), "{d:?}");
     let b = out.fusion.aabb.expect("a box");
     assert!(b.max[0] < 0.3, "{b:?}");
+}
+
+const BED: u16 = 5;
+const PILLOW: u16 = 6;
+
+#[test]
+fn the_chosen_box_keeps_the_bed_out_of_a_view_whose_region_holds_the_pillow_on_it() {
+    // A pillow lying on a bed, near the bed's corner.
+    let parts = vec![
+        ([-3.0, -3.0, -0.02], [4.0, 4.0, 0.0], 1),
+        ([0.0, 0.0, 0.0], [1.5, 2.0, 0.5], BED),
+        ([0.9, 0.9, 0.5], [1.3, 1.5, 0.65], PILLOW),
+    ];
+    let params = GeometryParams::default();
+    // The chosen view sees the pillow whole; the other, from nearer the bed's foot, sees
+    // the pillow with the end of the bed as one region (depth cannot part them).
+    let anchor = shot([1.1, 2.4, 2.4], [1.1, 1.2, 0.55], &parts, PILLOW, &params);
+    let other = shot_of(
+        [2.6, -0.4, 1.4],
+        [1.1, 1.2, 0.5],
+        &parts,
+        &[BED, PILLOW],
+        &params,
+    );
+    let bound = anchor
+        .bound(&params)
+        .expect("nothing hides the pillow in the chosen view");
+    // Without the bound the region passes the chamfer test and the box takes the bed.
+    let free = fuse_pair(&anchor, &other, true, &params);
+    assert!(free.fusion.views[0].kept, "{:?}", free.fusion.views);
+    let b = free.fusion.aabb.expect("a box");
+    assert!(b.min[2] < 0.3 || b.max[1] - b.min[1] > 1.2, "{b:?}");
+    // Bounded by the chosen box, the view gives the pillow, not the bed around it.
+    let out = fuse_bounded(&anchor, &other, true, Some(bound), &params);
+    assert!(out.votes.outside_anchor_box > 0, "{:?}", out.votes);
+    let b = out.fusion.aabb.expect("a box");
+    let pillow = Aabb {
+        min: [0.9, 0.9, 0.5],
+        max: [1.3, 1.5, 0.65],
+    };
+    assert!(b.iou(&pillow) > 0.8, "{b:?}");
+}
+
+#[test]
+fn the_box_of_a_close_up_cut_by_the_frames_edge_does_not_bound_the_rest() {
+    let parts = floor_lamp();
+    let params = GeometryParams::default();
+    let anchor = shot([0.0, -0.8, 0.3], [0.0, 0.0, 0.3], &parts, LAMP, &params);
+    let far = shot([2.2, -2.2, 1.2], [0.0, 0.0, 0.8], &parts, LAMP, &params);
+    let bound = anchor
+        .bound(&params)
+        .expect("a bound on the sides inside the frame");
+    assert!(bound.open, "{bound:?}");
+    let out = fuse_bounded(&anchor, &far, true, Some(bound), &params);
+    let b = out.fusion.aabb.expect("a box");
+    // The shade above the frame's top edge stays, wider than the foot in the frame.
+    assert!(b.max[2] > 1.5 && b.max[0] - b.min[0] > 0.3, "{b:?}");
 }

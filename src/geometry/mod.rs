@@ -12,6 +12,7 @@
 //! Before segmenting, [`fill_depth`] completes the chosen view's missing depth from the other
 //! frames and, for flat objects no frame measured, from the room's box ([`estimate_room`]).
 
+pub mod bound;
 pub mod boxes;
 pub mod camera;
 pub mod cloud;
@@ -41,6 +42,7 @@ pub mod wall_colour;
 pub mod wall_sweep;
 pub mod walls;
 
+pub use bound::{view_bound, within_bound, ViewBound};
 pub use boxes::Aabb;
 pub use camera::{DepthMap, FrameCamera, Intrinsics};
 pub use cloud::{

@@ -182,5 +182,6 @@ pub(crate) fn segmented_view<'a>(
         points: &[],
         region: None,
         partial: false,
+        bound: None,
     }
 }
