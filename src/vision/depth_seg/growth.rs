@@ -1,0 +1,164 @@
+//! Growing one surface from seeds at a depth mode: the growth itself, the cut of the
+//! supporting surface it leaked onto, and the colour-limited retry.
+
+use std::collections::VecDeque;
+
+use super::{same_hue, Colour, DepthSegmenter, Grid};
+
+impl DepthSegmenter {
+    /// Grow from seeds at the target depth (central part of the box first).
+    /// With `colour`, only cells within `colour_tol` of the seeds' median colour join.
+    pub(super) fn grow(
+        &self,
+        g: &Grid,
+        target: f64,
+        cell_px: f64,
+        blocked: &[bool],
+        rule: Colour,
+    ) -> Vec<bool> {
+        let colour = rule != Colour::Off;
+        let tol = 0.05 + 0.03 * target;
+        let near = |i: usize| {
+            g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i] && !g.edge[i]
+        };
+        let [bx0, by0, bx1, by1] = g.b;
+        let (qx, qy) = ((bx1 - bx0) / 4, (by1 - by0) / 4);
+        let mut seeds: Vec<usize> = Vec::new();
+        for gy in by0 + qy..(by1 - qy).max(by0 + qy + 1).min(g.h) {
+            for gx in bx0 + qx..(bx1 - qx).max(bx0 + qx + 1).min(g.w) {
+                let i = gy * g.w + gx;
+                if near(i) {
+                    seeds.push(i);
+                }
+            }
+        }
+        if seeds.is_empty() {
+            seeds = (0..g.z.len()).filter(|&i| near(i)).collect();
+        }
+        // Per-channel median colour of the seeds (robust when some seeds lie on a wall at
+        // the object's depth); only computed when colour limits the growth.
+        let mut mid = [0.0f64; 3];
+        if colour {
+            for (c, m) in mid.iter_mut().enumerate() {
+                let mut v: Vec<u8> = seeds.iter().map(|&i| g.rgb[i][c]).collect();
+                if !v.is_empty() {
+                    let k = v.len() / 2;
+                    *m = f64::from(*v.select_nth_unstable(k).1);
+                }
+            }
+        }
+        let like = |i: usize| match rule {
+            Colour::Off => true,
+            Colour::Rgb => {
+                mid.iter()
+                    .zip(&g.rgb[i])
+                    .map(|(m, &c)| (m - f64::from(c)).abs())
+                    .sum::<f64>()
+                    <= self.colour_tol
+            }
+            Colour::Hue => same_hue(&mid, &g.rgb[i], self.colour_tol),
+        };
+        if colour {
+            seeds.retain(|&i| like(i));
+        }
+        let mut region = vec![false; g.z.len()];
+        let mut queue: VecDeque<usize> = VecDeque::new();
+        for &s in &seeds {
+            region[s] = true;
+            queue.push_back(s);
+        }
+        while let Some(i) = queue.pop_front() {
+            let lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
+            for j in g.neighbours(i).into_iter().flatten() {
+                if !region[j]
+                    && !blocked[j]
+                    && !g.edge[j]
+                    && g.z[j] > 0.0
+                    && (g.z[j] - g.z[i]).abs() <= lim
+                    && like(j)
+                {
+                    region[j] = true;
+                    queue.push_back(j);
+                }
+            }
+        }
+        region
+    }
+
+    /// Cells of the supporting surface if the region leaked onto it.
+    pub(super) fn support_cut(&self, g: &Grid, region: &[bool]) -> Option<Vec<bool>> {
+        let mut hs: Vec<f64> = (0..region.len())
+            .filter(|&i| region[i] && g.inb[i])
+            .map(|i| g.height[i])
+            .collect();
+        if hs.len() < 20 {
+            return None;
+        }
+        // The 2nd percentile: the same value a full sort puts there, without the sort.
+        let k = hs.len() / 50;
+        let low = *hs.select_nth_unstable_by(k, f64::total_cmp).1;
+        let cut: Vec<bool> = (0..region.len())
+            .map(|i| region[i] && g.height[i] < low + self.support_band)
+            .collect();
+        let n_cut = (0..cut.len()).filter(|&i| cut[i] && g.inb[i]).count();
+        let frac = n_cut as f64 / hs.len() as f64;
+        // a support surface spans many rows of the box; the object's own bottom strip does not
+        let [bx0, by0, bx1, by1] = g.b;
+        let rows: Vec<usize> = (by0..by1)
+            .filter(|&y| (bx0..bx1).any(|x| cut[y * g.w + x]))
+            .collect();
+        let span = match (rows.first(), rows.last()) {
+            (Some(a), Some(b)) => b - a + 1,
+            _ => 0,
+        };
+        (frac > 0.03
+            && frac < 0.7
+            && span as f64 >= 0.15 * (by1 - by0) as f64
+            && Self::lies_flat(g, &cut))
+        .then_some(cut)
+    }
+
+    /// Region for one mode, with the support removed; and its fraction outside the box.
+    pub(super) fn surface(&self, g: &Grid, target: f64, cell_px: f64) -> (Vec<bool>, f64) {
+        let (region, outside) = self.surface_with(g, target, cell_px, Colour::Off);
+        if outside <= self.max_outside {
+            return (region, outside);
+        }
+        // Leaked past the box on depth alone: try again with colour as a second limit.
+        let (coloured, out_c) = self.surface_with(g, target, cell_px, Colour::Rgb);
+        if out_c <= self.max_outside {
+            (coloured, out_c)
+        } else {
+            (region, outside)
+        }
+    }
+
+    pub(super) fn surface_with(
+        &self,
+        g: &Grid,
+        target: f64,
+        cell_px: f64,
+        colour: Colour,
+    ) -> (Vec<bool>, f64) {
+        let none = vec![false; g.z.len()];
+        let mut region = self.grow(g, target, cell_px, &none, colour);
+        if let Some(cut) = self.support_cut(g, &region) {
+            let regrown = self.grow(g, target, cell_px, &cut, colour);
+            if regrown.iter().any(|&b| b) {
+                region = regrown;
+            }
+        }
+        let total = region.iter().filter(|&&b| b).count();
+        let outside = (0..region.len())
+            .filter(|&i| region[i] && !g.inb[i])
+            .count();
+        (
+            region,
+            if total == 0 {
+                1.0
+            } else {
+                outside as f64 / total as f64
+            },
+        )
+    }
+}
