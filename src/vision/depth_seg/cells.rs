@@ -19,6 +19,52 @@ impl DepthSegmenter {
         ((r[2] - r[0]) * (r[3] - r[1])) as f64 / ((bx1 - bx0) * (by1 - by0)).max(1) as f64
     }
 
+    /// `region` with the parts of the object that the growth across the larger step
+    /// (`grouped`) reached: each connected piece it adds is kept when nine in ten of its
+    /// cells lie inside the box and none on the frame's edge (`size`: the image's). A tight
+    /// box holds all of its object, while what stands beside, behind or under it across
+    /// such a step (the wall around a window, the floor under a chair) runs on past the
+    /// box, or past the frame where the box reaches it. None when no piece is kept.
+    pub(super) fn with_parts(
+        g: &Grid,
+        region: &[bool],
+        grouped: &[bool],
+        size: (u32, u32),
+    ) -> Option<Vec<bool>> {
+        let s = g.s as usize;
+        let on_edge = |i: usize| {
+            let (x, y) = (g.x0 as usize + (i % g.w) * s, g.y0 as usize + (i / g.w) * s);
+            x == 0 || y == 0 || x + s >= size.0 as usize || y + s >= size.1 as usize
+        };
+        let added = |i: usize| grouped[i] && !region[i];
+        let mut seen = vec![false; region.len()];
+        let mut out = region.to_vec();
+        let mut any = false;
+        for start in 0..region.len() {
+            if seen[start] || !added(start) {
+                continue;
+            }
+            seen[start] = true;
+            let mut piece = vec![start];
+            let mut k = 0;
+            while k < piece.len() {
+                for j in g.neighbours(piece[k]).into_iter().flatten() {
+                    if !seen[j] && added(j) {
+                        seen[j] = true;
+                        piece.push(j);
+                    }
+                }
+                k += 1;
+            }
+            let outside = piece.iter().filter(|&&i| !g.inb[i]).count();
+            if outside * 10 <= piece.len() && !piece.iter().any(|&i| on_edge(i)) {
+                piece.iter().for_each(|&i| out[i] = true);
+                any = true;
+            }
+        }
+        any.then_some(out)
+    }
+
     /// Is what colour took away from the depth-grown `region` (cells of `region` not in
     /// `coloured`) mostly a neighbour running in from outside the box? At least half of
     /// the removed in-box cells must connect, through removed cells, to removed cells

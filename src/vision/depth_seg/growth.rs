@@ -5,6 +5,16 @@ use std::collections::VecDeque;
 
 use super::{same_hue, Colour, DepthSegmenter, Grid};
 
+/// The depth step a growth crosses between neighbouring cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Reach {
+    /// One surface: the noise- and distance-dependent step of a continuous face.
+    Surface,
+    /// Also the step between the parts of one object seen across its own depth (a lamp's
+    /// shade in front of the pole that holds it): `group_step + group_per_m * z`.
+    Group,
+}
+
 impl DepthSegmenter {
     /// Grow from seeds at the target depth (central part of the box first).
     /// With `colour`, only cells within `colour_tol` of the seeds' median colour join.
@@ -14,7 +24,7 @@ impl DepthSegmenter {
         target: f64,
         cell_px: f64,
         blocked: &[bool],
-        rule: Colour,
+        (rule, reach): (Colour, Reach),
     ) -> Vec<bool> {
         let colour = rule != Colour::Off;
         let tol = 0.05 + 0.03 * target;
@@ -68,7 +78,10 @@ impl DepthSegmenter {
             queue.push_back(s);
         }
         while let Some(i) = queue.pop_front() {
-            let lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
+            let mut lim = (self.step_abs + self.step_rel * g.z[i]) * cell_px.max(1.0);
+            if reach == Reach::Group {
+                lim = lim.max(self.group_step + self.group_per_m * g.z[i]);
+            }
             for j in g.neighbours(i).into_iter().flatten() {
                 if !region[j]
                     && !blocked[j]
@@ -120,12 +133,12 @@ impl DepthSegmenter {
 
     /// Region for one mode, with the support removed; and its fraction outside the box.
     pub(super) fn surface(&self, g: &Grid, target: f64, cell_px: f64) -> (Vec<bool>, f64) {
-        let (region, outside) = self.surface_with(g, target, cell_px, Colour::Off);
+        let (region, outside) = self.surface_with(g, target, cell_px, Colour::Off, Reach::Surface);
         if outside <= self.max_outside {
             return (region, outside);
         }
         // Leaked past the box on depth alone: try again with colour as a second limit.
-        let (coloured, out_c) = self.surface_with(g, target, cell_px, Colour::Rgb);
+        let (coloured, out_c) = self.surface_with(g, target, cell_px, Colour::Rgb, Reach::Surface);
         if out_c <= self.max_outside {
             (coloured, out_c)
         } else {
@@ -139,11 +152,12 @@ impl DepthSegmenter {
         target: f64,
         cell_px: f64,
         colour: Colour,
+        reach: Reach,
     ) -> (Vec<bool>, f64) {
         let none = vec![false; g.z.len()];
-        let mut region = self.grow(g, target, cell_px, &none, colour);
+        let mut region = self.grow(g, target, cell_px, &none, (colour, reach));
         if let Some(cut) = self.support_cut(g, &region) {
-            let regrown = self.grow(g, target, cell_px, &cut, colour);
+            let regrown = self.grow(g, target, cell_px, &cut, (colour, reach));
             if regrown.iter().any(|&b| b) {
                 region = regrown;
             }

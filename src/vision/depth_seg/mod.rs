@@ -28,6 +28,8 @@ use crate::geometry::mask::Mask;
 mod cells;
 mod growth;
 
+use growth::Reach;
+
 /// Parameters of the depth segmenter.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DepthSegmenter {
@@ -58,6 +60,18 @@ pub struct DepthSegmenter {
     /// Score each depth-grown surface that runs past the box beside its colour-limited
     /// version and keep the better (spec `depth:colour=off` turns it off).
     pub colour_alternative: bool,
+    /// Score each surface beside the same growth across the larger step between the parts
+    /// of one object (`group_step + group_per_m * z`, the candidates' group step): a floor
+    /// lamp's shade stands in front of its pole by the shade's radius, so the shade alone
+    /// is one surface and the pole with its foot another, neither filling the lamp's box,
+    /// and a plant behind fills more of it than either (spec `depth:groups=off`).
+    pub group_alternative: bool,
+    /// ...only when no one surface scores this much (extent filling the box, less what
+    /// runs past it): a surface that explains most of its box is the object, and joining
+    /// across the larger step would add what stands beside it (a table's end by a chair).
+    pub group_below: f64,
+    pub group_step: f64,
+    pub group_per_m: f64,
 }
 
 impl Default for DepthSegmenter {
@@ -74,12 +88,18 @@ impl Default for DepthSegmenter {
             colour_tol: 60.0,
             block_edges: false,
             colour_alternative: true,
+            group_alternative: true,
+            group_below: 0.5,
+            group_step: 0.25,
+            group_per_m: 0.05,
         }
     }
 }
 
 impl DepthSegmenter {
-    /// Options after `depth:`, comma-separated: `edges=on|off` ([`Self::block_edges`]).
+    /// Options after `depth:`, comma-separated: `edges=on|off` ([`Self::block_edges`]),
+    /// `colour=on|off` ([`Self::colour_alternative`]), `groups=on|off`
+    /// ([`Self::group_alternative`]).
     pub fn from_spec(spec: &str) -> Result<Self> {
         let mut d = Self::default();
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
@@ -88,7 +108,12 @@ impl DepthSegmenter {
                 Some(("edges", "off")) => d.block_edges = false,
                 Some(("colour", "on")) => d.colour_alternative = true,
                 Some(("colour", "off")) => d.colour_alternative = false,
-                _ => bail!("unknown depth segmenter option `{part}` (expected edges=on|off or colour=on|off)"),
+                Some(("groups", "on")) => d.group_alternative = true,
+                Some(("groups", "off")) => d.group_alternative = false,
+                _ => bail!(
+                    "unknown depth segmenter option `{part}` \
+                     (expected edges=on|off, colour=on|off or groups=on|off)"
+                ),
             }
         }
         Ok(d)
@@ -375,6 +400,10 @@ impl Segmenter for DepthSegmenter {
         // what colour removes is mostly a neighbour running in from outside the box: two
         // touching objects at one depth (pillows side by side) are one surface to depth, and
         // the coloured one then stops at the box as tightly while running past it less.
+        // With `group_alternative`, when no surface scores `group_below`, each is also
+        // scored grown across the step between the parts of one object (a lamp's shade
+        // with the pole and foot behind it): the pieces it adds that lie in the box
+        // ([`Self::with_parts`]).
         let mut best: Option<(f64, Vec<bool>)> = None;
         let score = |region: &[bool], outside: f64| {
             Self::extent_fill(&g, region)
@@ -385,19 +414,37 @@ impl Segmenter for DepthSegmenter {
                     0.5
                 }
         };
+        let mut plain = Vec::with_capacity(4);
         for &m in modes.iter().take(4) {
             let (region, outside) = self.surface(&g, m, cell_px);
             let mut cands = Vec::with_capacity(2);
             if self.colour_alternative && outside > 0.0 {
-                let (coloured, out_c) = self.surface_with(&g, m, cell_px, Colour::Hue);
+                let (coloured, out_c) =
+                    self.surface_with(&g, m, cell_px, Colour::Hue, Reach::Surface);
                 if Self::colour_drops_a_leak(&g, &region, &coloured) {
                     cands.push((score(&coloured, out_c), coloured));
                 }
             }
-            cands.insert(0, (score(&region, outside), region));
+            cands.insert(0, (score(&region, outside), region.clone()));
             for (sc, region) in cands {
                 if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
                     best = Some((sc, region));
+                }
+            }
+            plain.push((m, region));
+        }
+        // Parts are joined only when no one surface explains the box.
+        let unexplained = best.as_ref().is_none_or(|(s, _)| *s < self.group_below);
+        if self.group_alternative && unexplained {
+            for (m, region) in plain {
+                let (grouped, _) = self.surface_with(&g, m, cell_px, Colour::Off, Reach::Group);
+                if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
+                    let n = whole.iter().filter(|&&c| c).count().max(1);
+                    let past = (0..whole.len()).filter(|&i| whole[i] && !g.inb[i]).count();
+                    let sc = score(&whole, past as f64 / n as f64);
+                    if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
+                        best = Some((sc, whole));
+                    }
                 }
             }
         }

@@ -257,11 +257,12 @@ fn hue_survives_shading_but_not_another_colour() {
 
 /// The tight box of a mask.
 fn mask_box(m: &Mask) -> [f32; 4] {
-    let px: Vec<(u32, u32)> = (0..S)
-        .flat_map(|y| (0..S).map(move |x| (x, y)))
+    let (w, h) = (m.width, m.height);
+    let px: Vec<(u32, u32)> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
         .filter(|&(x, y)| m.get(x, y))
         .collect();
-    let (x0, y0) = px.iter().fold((S, S), |a, p| (a.0.min(p.0), a.1.min(p.1)));
+    let (x0, y0) = px.iter().fold((w, h), |a, p| (a.0.min(p.0), a.1.min(p.1)));
     let (x1, y1) = px.iter().fold((0, 0), |a, p| (a.0.max(p.0), a.1.max(p.1)));
     [x0 as f32, y0 as f32, x1 as f32 + 1.0, y1 as f32 + 1.0]
 }
@@ -394,4 +395,126 @@ fn a_window_split_by_its_mullion_keeps_both_panes() {
     // Of another colour, the smaller piece is another surface: only the larger stays.
     let (left, right) = segment([60, 140, 70]);
     assert!(left < 0.05 && right > 0.8, "panes: {left:.2} {right:.2}");
+}
+
+#[test]
+fn a_floor_lamps_shade_pole_and_foot_are_one_mask_before_the_plant_behind() {
+    // A floor lamp 2.2 m away: a 40 cm shade 1.3-1.6 m up, which stands 20 cm in front of
+    // the 3 cm pole that holds it (a step no surface growth takes), and a round foot. A
+    // plant behind it, 1.2 m further, fills the middle of the lamp's box; a wall beyond.
+    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
+    let foot = ([2.08, -0.12, 0.0], [2.32, 0.12, 0.03], [200, 200, 200]);
+    let pole = ([2.185, -0.015, 0.03], [2.215, 0.015, 1.3], [190, 190, 190]);
+    let shade = ([2.0, -0.2, 1.3], [2.4, 0.2, 1.6], [30, 30, 30]);
+    let plant = ([3.4, -0.3, 0.2], [3.8, 0.3, 1.2], [40, 140, 50]);
+    let wall = ([5.0, -3.0, 0.0], [5.1, 3.0, 3.0], [170, 170, 170]);
+    let parts = [floor, foot, pole, shade, plant, wall];
+    let k = Intrinsics {
+        fx: 160.0,
+        fy: 160.0,
+        cx: 79.5,
+        cy: 99.5,
+        width: 160,
+        height: 200,
+    };
+    let cam = FrameCamera {
+        color: k,
+        depth: None,
+        depth_size: (160, 200),
+        pose: look_at_pose(
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(2.2, 0.0, 0.8),
+            Vector3::z(),
+        ),
+        align: Matrix4::identity(),
+    };
+    let (color, depth, _) = render_coloured(&cam, &parts, 0);
+    let mut lamp = Mask::new(160, 200);
+    for part in 1..=3 {
+        let (_, _, m) = render_coloured(&cam, &parts, part);
+        for (o, &v) in lamp.data.iter_mut().zip(&m.data) {
+            *o |= v;
+        }
+    }
+    let input = SegmentInput {
+        color: &color,
+        depth: &depth,
+        camera: &cam,
+    };
+    let bbox = mask_box(&lamp);
+    let grouped = DepthSegmenter::default().segment(&input, bbox).unwrap();
+    assert!(
+        grouped.iou(&lamp) > 0.7,
+        "IoU {} (box {bbox:?})",
+        grouped.iou(&lamp)
+    );
+    // One surface at a time, the plant behind fills more of the box than the shade.
+    let alone = DepthSegmenter::from_spec("groups=off").unwrap();
+    let m = alone.segment(&input, bbox).unwrap();
+    assert!(m.iou(&lamp) < 0.5, "IoU {} without groups", m.iou(&lamp));
+}
+
+#[test]
+fn what_the_larger_step_reaches_past_the_box_is_not_a_part() {
+    // A brown cabinet 20 cm in front of a grey wall, seen level: across the step between
+    // an object's parts the growth runs from the cabinet onto the wall, past the box.
+    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
+    let cabinet = ([2.8, -0.3, 0.0], [3.2, 0.3, 0.8], [120, 80, 40]);
+    let wall = ([3.4, -3.0, 0.0], [3.5, 3.0, 3.0], [150, 150, 150]);
+    let cam = level_camera();
+    let (color, depth, truth) = render_coloured(&cam, &[floor, cabinet, wall], 1);
+    let input = SegmentInput {
+        color: &color,
+        depth: &depth,
+        camera: &cam,
+    };
+    let bbox = mask_box(&truth);
+    let seg = DepthSegmenter::default();
+    let g = seg.grid(&input, bbox).expect("a grid");
+    let (grouped, past) = seg.surface_with(&g, 2.85, 1.0, Colour::Off, Reach::Group);
+    assert!(past > 0.3, "the growth reaches the wall: {past}");
+    let (region, _) = seg.surface(&g, 2.85, 1.0);
+    assert!(grouped.iter().zip(&region).any(|(&a, &b)| a && !b));
+    assert!(DepthSegmenter::with_parts(&g, &region, &grouped, (S, S)).is_none());
+    let m = seg.segment(&input, bbox).unwrap();
+    assert!(m.iou(&truth) > 0.8, "IoU {}", m.iou(&truth));
+}
+
+#[test]
+fn a_surface_that_explains_its_box_is_not_joined_to_what_stands_beside_it() {
+    // Box [20, 20, 60, 60] at 2 m: the object fills its left 80 %; in the right 20 %, a
+    // neighbour 20 cm behind it (a table's end beside a chair), within the box, with a
+    // wall at 4 m around both.
+    let mut color = RgbImage::from_pixel(S, S, Rgb([150, 150, 150]));
+    let mut depth = vec![4000u16; (S * S) as usize];
+    let mut object = Mask::new(S, S);
+    for y in 20..60 {
+        for x in 20..60 {
+            let (d, c) = if x < 52 {
+                (2000, [120, 60, 30])
+            } else {
+                (2200, [40, 40, 40])
+            };
+            depth[(y * S + x) as usize] = d;
+            color.put_pixel(x, y, Rgb(c));
+            object.set(x, y, x < 52);
+        }
+    }
+    let (depth, cam) = (DepthMap::new(S, S, depth), level_camera());
+    let input = SegmentInput {
+        color: &color,
+        depth: &depth,
+        camera: &cam,
+    };
+    let bbox = [20.0, 20.0, 60.0, 60.0];
+    let seg = DepthSegmenter::default();
+    let m = seg.segment(&input, bbox).unwrap();
+    assert!(m.iou(&object) > 0.9, "IoU {}", m.iou(&object));
+    // Were parts joined whatever the best surface explains, the neighbour would join.
+    let always = DepthSegmenter {
+        group_below: f64::INFINITY,
+        ..DepthSegmenter::default()
+    };
+    let joined = always.segment(&input, bbox).unwrap();
+    assert!(joined.get(56, 40) && joined.iou(&object) < 0.9);
 }
