@@ -4,10 +4,10 @@
 //! that image shows. When nothing hides part of the object in that image (no nearer
 //! surface along its outline: `geometry::partial`), it holds all of the object: every
 //! point of it projects into the box. A box that touches the frame's edge bounds what the
-//! image shows, not what lies beyond the frame (the object may go on there). Another view's points that project outside
-//! the bound are not the object, whatever that view's mask says: a region that holds a
-//! pillow with the bed it lies on, where the chosen view saw the pillow alone, gives the
-//! pillow and none of the bed.
+//! image shows, not what lies beyond the frame (the object may go on there). Another
+//! view's points that project outside the bound are not the object, whatever that view's
+//! mask says: a region that holds a pillow with the bed it lies on, where the chosen view
+//! saw the pillow alone, gives the pillow and none of the bed.
 //!
 //! The bound speaks where the chosen view's mask cannot: for points that view does not
 //! measure (hidden behind the object or by something else, out of its depth range) and

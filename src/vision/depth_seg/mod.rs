@@ -14,6 +14,9 @@
 //! surfaces that stay mostly inside the box, the one whose extent fills the box best while
 //! running least past its edges is the object: a tight box ends where the object ends, an
 //! occluder in front covers only part of it, and the background behind runs on past it.
+//! When no surface explains the box so, each is grown again across the larger step between
+//! the parts of one object (a lamp's shade in front of its pole), keeping only the pieces
+//! that adds inside the box.
 //! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
 //! its size and of its colour (a window's panes either side of its mullion). Small holes
 //! (missing depth) are closed and depth-less pixels whose colour matches the region are
