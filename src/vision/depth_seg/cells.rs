@@ -36,26 +36,9 @@ impl DepthSegmenter {
             let (x, y) = (g.x0 as usize + (i % g.w) * s, g.y0 as usize + (i / g.w) * s);
             x == 0 || y == 0 || x + s >= size.0 as usize || y + s >= size.1 as usize
         };
-        let added = |i: usize| grouped[i] && !region[i];
-        let mut seen = vec![false; region.len()];
         let mut out = region.to_vec();
         let mut any = false;
-        for start in 0..region.len() {
-            if seen[start] || !added(start) {
-                continue;
-            }
-            seen[start] = true;
-            let mut piece = vec![start];
-            let mut k = 0;
-            while k < piece.len() {
-                for j in g.neighbours(piece[k]).into_iter().flatten() {
-                    if !seen[j] && added(j) {
-                        seen[j] = true;
-                        piece.push(j);
-                    }
-                }
-                k += 1;
-            }
+        for piece in g.components(|i| grouped[i] && !region[i]) {
             let outside = piece.iter().filter(|&&i| !g.inb[i]).count();
             if outside * 10 <= piece.len() && !piece.iter().any(|&i| on_edge(i)) {
                 piece.iter().for_each(|&i| out[i] = true);
@@ -121,50 +104,33 @@ impl DepthSegmenter {
     /// over the channels). Stray bits go; one surface split by something before it (the
     /// panes of a window either side of its mullion) stays whole.
     pub(super) fn main_components(g: &Grid, region: &[bool], colour_tol: f64) -> Vec<bool> {
-        let mut label = vec![0usize; region.len()];
-        // Per component: cells and summed colour (label 0 is no component).
-        let mut comps: Vec<(usize, [f64; 3])> = vec![(0, [0.0; 3])];
-        for start in 0..region.len() {
-            if !region[start] || label[start] != 0 {
-                continue;
-            }
-            let next = comps.len();
-            let (mut n, mut rgb) = (0, [0.0; 3]);
-            let mut stack = vec![start];
-            label[start] = next;
-            while let Some(i) = stack.pop() {
-                n += 1;
-                for (c, v) in rgb.iter_mut().zip(g.rgb[i]) {
-                    *c += f64::from(v);
-                }
-                for j in g.neighbours(i).into_iter().flatten() {
-                    if region[j] && label[j] == 0 {
-                        label[j] = next;
-                        stack.push(j);
+        let comps: Vec<(Vec<usize>, [f64; 3])> = g
+            .components(|i| region[i])
+            .into_iter()
+            .map(|cells| {
+                let mut rgb = [0.0; 3];
+                for &i in &cells {
+                    for (c, v) in rgb.iter_mut().zip(g.rgb[i]) {
+                        *c += f64::from(v);
                     }
                 }
-            }
-            comps.push((n, rgb));
-        }
-        let mean = |k: usize| comps[k].1.map(|c| c / comps[k].0.max(1) as f64);
-        let largest = (1..comps.len()).max_by_key(|&k| (comps[k].0, std::cmp::Reverse(k)));
-        let Some(top) = largest else {
-            return vec![false; region.len()];
-        };
-        let keep: Vec<bool> = (0..comps.len())
-            .map(|k| {
-                k == top
-                    || (k > 0
-                        && 2 * comps[k].0 >= comps[top].0
-                        && mean(k)
-                            .iter()
-                            .zip(mean(top))
-                            .map(|(a, b)| (a - b).abs())
-                            .sum::<f64>()
-                            <= colour_tol)
+                let n = cells.len() as f64;
+                (cells, rgb.map(|c| c / n))
             })
             .collect();
-        label.iter().map(|&l| keep[l]).collect()
+        let largest = (0..comps.len()).max_by_key(|&k| (comps[k].0.len(), std::cmp::Reverse(k)));
+        let mut out = vec![false; region.len()];
+        let Some(top) = largest else {
+            return out;
+        };
+        let (top_n, top_mean) = (comps[top].0.len(), comps[top].1);
+        for (k, (cells, mean)) in comps.iter().enumerate() {
+            let near: f64 = mean.iter().zip(top_mean).map(|(a, b)| (a - b).abs()).sum();
+            if k == top || (2 * cells.len() >= top_n && near <= colour_tol) {
+                cells.iter().for_each(|&i| out[i] = true);
+            }
+        }
+        out
     }
 
     /// Edge cells with the region on two opposite sides are a crease inside the object (a

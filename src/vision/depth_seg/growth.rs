@@ -162,17 +162,7 @@ impl DepthSegmenter {
                 region = regrown;
             }
         }
-        let total = region.iter().filter(|&&b| b).count();
-        let outside = (0..region.len())
-            .filter(|&i| region[i] && !g.inb[i])
-            .count();
-        (
-            region,
-            if total == 0 {
-                1.0
-            } else {
-                outside as f64 / total as f64
-            },
-        )
+        let outside = g.outside_share(&region);
+        (region, outside)
     }
 }

@@ -156,6 +156,45 @@ impl Grid {
             (y + 1 < self.h).then(|| i + self.w),
         ]
     }
+
+    /// The 4-connected components of the cells for which `member` holds, each as its
+    /// cells, in the order of their first cell in the grid.
+    fn components(&self, member: impl Fn(usize) -> bool) -> Vec<Vec<usize>> {
+        let mut seen = vec![false; self.z.len()];
+        let mut out = Vec::new();
+        for start in 0..self.z.len() {
+            if seen[start] || !member(start) {
+                continue;
+            }
+            seen[start] = true;
+            let mut piece = vec![start];
+            let mut k = 0;
+            while k < piece.len() {
+                for j in self.neighbours(piece[k]).into_iter().flatten() {
+                    if !seen[j] && member(j) {
+                        seen[j] = true;
+                        piece.push(j);
+                    }
+                }
+                k += 1;
+            }
+            out.push(piece);
+        }
+        out
+    }
+
+    /// Share of the region's cells that lie outside the box (1 for an empty region).
+    fn outside_share(&self, region: &[bool]) -> f64 {
+        let total = region.iter().filter(|&&b| b).count();
+        let outside = (0..region.len())
+            .filter(|&i| region[i] && !self.inb[i])
+            .count();
+        if total == 0 {
+            1.0
+        } else {
+            outside as f64 / total as f64
+        }
+    }
 }
 
 /// How colour limits the growth.
@@ -442,9 +481,7 @@ impl Segmenter for DepthSegmenter {
             for (m, region) in plain {
                 let (grouped, _) = self.surface_with(&g, m, cell_px, Colour::Off, Reach::Group);
                 if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
-                    let n = whole.iter().filter(|&&c| c).count().max(1);
-                    let past = (0..whole.len()).filter(|&i| whole[i] && !g.inb[i]).count();
-                    let sc = score(&whole, past as f64 / n as f64);
+                    let sc = score(&whole, g.outside_share(&whole));
                     if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
                         best = Some((sc, whole));
                     }
