@@ -10,6 +10,10 @@
 # an Idempotency-Key reused with another body, a Last-Event-ID this stream never sent).
 # The upload operations' binary bodies make hypothesis filter many examples; its
 # filter_too_much health check is suppressed so that they are tested anyway.
+# One worker (`-w 1`): with two, CPython 3.11's `ast.parse` (which hypothesis calls while
+# describing a strategy) can fail across threads with "SystemError: AST constructor
+# recursion depth mismatch", failing a run in which every case passed. The version is
+# pinned to one that passed here, so that a new release cannot change the checks unseen.
 #
 # Environment (defaults in brackets): GROUNDER_BIN [target/debug/grounder, built when
 # missing], PORT [18391], MAX_TIME [120] seconds of generated requests, MAX_EXAMPLES [40].
@@ -22,7 +26,7 @@ MAX_EXAMPLES=${MAX_EXAMPLES:-40}
 VENV="$ROOT/.venv-schemathesis"
 if [[ ! -x "$VENV/bin/schemathesis" ]]; then
     python3 -m venv "$VENV"
-    "$VENV/bin/pip" install -q --disable-pip-version-check schemathesis
+    "$VENV/bin/pip" install -q --disable-pip-version-check "schemathesis==4.32.5"
 fi
 if [[ -z "${GROUNDER_BIN:-}" ]]; then
     (cd "$ROOT" && cargo build -q --bin grounder)
@@ -43,7 +47,7 @@ for _ in $(seq 200); do
     sleep 0.1
 done
 BASE="http://127.0.0.1:$PORT"
-"$VENV/bin/schemathesis" run "$BASE/openapi.yaml" --url "$BASE" -w 2 --max-time "$MAX_TIME" \
+"$VENV/bin/schemathesis" run "$BASE/openapi.yaml" --url "$BASE" -w 1 --max-time "$MAX_TIME" \
     --max-examples "$MAX_EXAMPLES" --phases examples,coverage,fuzzing,stateful \
     --suppress-health-check=filter_too_much \
     --checks not_a_server_error,status_code_conformance,content_type_conformance,response_headers_conformance,response_schema_conformance,negative_data_rejection
