@@ -155,6 +155,15 @@ mkdir -p "$(dirname "$REPORT")"
         echo "| $err | $seg | $(jq .n_queries "$s") | $(pct .scanrefer.overall.acc_025 "$s") | $(pct .scanrefer.overall.acc_05 "$s") | $(pct .scanrefer.unique.acc_025 "$s") | $(pct .scanrefer.unique.acc_05 "$s") | $(pct .scanrefer.multiple.acc_025 "$s") | $(pct .scanrefer.multiple.acc_05 "$s") | $(pct .nr3d.overall.rate "$s") |"
     done
     echo
+    echo "95 % intervals of the overall accuracies (bootstrap over the target objects, each with"
+    echo "all its queries; \`grounder compare\` gives the interval of a difference between two runs):"
+    echo
+    for c in "${CONFIGS[@]}"; do
+        read -r err seg <<<"$c"
+        s=$BENCH_DIR/run-err$err-$seg/report/summary.json
+        echo "- err $err, $seg: $(jq -r '.scanrefer.overall_interval | if . == null then "–" else "Acc@0.25 \(.acc_025.lo * 1000 | round / 10)–\(.acc_025.hi * 1000 | round / 10) %, Acc@0.5 \(.acc_05.lo * 1000 | round / 10)–\(.acc_05.hi * 1000 | round / 10) % (\(.objects) objects)" end' "$s")"
+    done
+    echo
     echo "## Per-stage success rates"
     echo
     echo "| stage | $(for c in "${CONFIGS[@]}"; do read -r e g <<<"$c"; printf 'err %s, %s | ' "$e" "$g"; done)"

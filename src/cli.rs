@@ -34,6 +34,9 @@ pub enum Command {
     OracleVlm(crate::eval::cli::OracleVlmArgs),
     /// Evaluate the service on an annotated dataset.
     Eval(crate::eval::cli::EvalArgs),
+    /// Compare two evaluation reports of the same queries: accuracies, their difference and
+    /// its 95 % interval (objects resampled), and the objects that changed.
+    Compare(crate::eval::compare::CompareArgs),
     /// Convert ScanRefer / Nr3D / ScanNet ground truth into grounder annotations.
     Convert(crate::eval::cli::ConvertArgs),
     /// Print the service's OpenAPI document (YAML).
@@ -76,6 +79,7 @@ pub fn main() -> ExitCode {
             Command::OracleVlm(a) => done(crate::eval::cli::run_oracle_vlm(a).await),
             Command::Eval(a) => done(crate::eval::cli::run_eval(a).await),
             Command::Convert(a) => done(crate::eval::cli::run_convert(a)),
+            Command::Compare(a) => done(crate::eval::compare::run(a)),
             Command::Keys(a) => done(crate::keys::run(a).await),
             Command::Openapi => {
                 print!("{}", crate::api::openapi::yaml());

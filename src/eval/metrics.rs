@@ -48,6 +48,10 @@ impl StageOutcome {
 pub struct QueryRecord {
     pub query_id: String,
     pub scene_id: String,
+    /// The query's target object (absent in results written before records carried it);
+    /// queries about one object are resampled together for the report's intervals.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_id: Option<u32>,
     pub subset: Subset,
     /// Predicted box, `null` when the job produced none.
     pub predicted: Option<Aabb>,
@@ -124,6 +128,7 @@ pub fn score(query: &Query, objects: &SceneObjects, obs: Observation) -> QueryRe
     QueryRecord {
         query_id: query.query_id.clone(),
         scene_id: query.scene_id.clone(),
+        target_id: Some(query.target_id),
         subset: query.subset,
         predicted: obs.predicted,
         iou,

@@ -164,6 +164,19 @@ pub fn render_markdown(s: &Summary, plot_has_text: bool) -> String {
     acc_row(&mut o, "overall", &s.scanrefer.overall);
     acc_row(&mut o, "unique", &s.scanrefer.unique);
     acc_row(&mut o, "multiple", &s.scanrefer.multiple);
+    if let Some(iv) = &s.scanrefer.overall_interval {
+        let _ = writeln!(
+            o,
+            "\n95 % intervals (bootstrap over the {} target objects, each with all its queries; \
+             {} resamples): Acc@0.25 {}–{}, Acc@0.5 {}–{}.",
+            iv.objects,
+            iv.resamples,
+            pct(iv.acc_025.lo),
+            pct(iv.acc_025.hi),
+            pct(iv.acc_05.lo),
+            pct(iv.acc_05.hi)
+        );
+    }
     let _ = writeln!(
         o,
         "\n## Nr3D (nearest ground-truth centre is the target)\n\n| split | accuracy |\n|---|---|"
@@ -256,6 +269,7 @@ mod tests {
         QueryRecord {
             query_id: id.into(),
             scene_id: "s".into(),
+            target_id: None,
             subset,
             predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
             iou,
@@ -310,6 +324,15 @@ mod tests {
         let md = std::fs::read_to_string(&files.markdown).unwrap();
         assert!(md.contains("| overall | 3 | 66.7 % | 33.3 % |"), "{md}");
         assert!(md.contains("| multiple | 2 | 50.0 % | 0.0 % |"), "{md}");
+        // Three queries, each its own cluster (no target ids): the interval spans 0-100 %
+        // at 0.25 ("a" and "b" hit, "c" misses) and ends at 0 % below 0.5.
+        let iv = s.scanrefer.overall_interval.expect("records");
+        assert_eq!(iv.objects, 3);
+        assert!(iv.acc_025.lo < 0.67 && iv.acc_025.hi > 0.67, "{iv:?}");
+        assert!(
+            md.contains("95 % intervals (bootstrap over the 3 target objects"),
+            "{md}"
+        );
         let json: Summary =
             serde_json::from_str(&std::fs::read_to_string(&files.json).unwrap()).unwrap();
         assert_eq!(json, s);

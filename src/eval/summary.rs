@@ -43,6 +43,10 @@ pub struct ScanReferSummary {
     pub overall: AccBlock,
     pub unique: AccBlock,
     pub multiple: AccBlock,
+    /// 95 % intervals of the overall accuracies, resampling target objects
+    /// ([`super::interval`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub overall_interval: Option<super::interval::AccIntervals>,
 }
 
 /// Nr3D metrics; the split rates are present only when some query carries the flag.
@@ -176,6 +180,7 @@ pub fn summarize(records: &[QueryRecord]) -> Summary {
             overall: acc(&all),
             unique: acc(&uniq),
             multiple: acc(&mult),
+            overall_interval: super::interval::acc_intervals(records),
         },
         nr3d: Nr3dSummary {
             overall: Rate::of(records.iter().map(|r| r.nr3d_correct)),

@@ -330,3 +330,90 @@ fn cli_in_process_mode_reports_a_bad_dataset_in_one_line() {
         "{err}"
     );
 }
+
+#[test]
+fn cli_compare_pairs_two_reports_by_query_and_object() {
+    use grounder::eval::metrics::{QueryRecord, StageOutcome};
+    let root = tempfile::tempdir().unwrap();
+    dataset(root.path());
+    let rec = |id: &str, scene: &str, target: Option<u32>, iou: f64| QueryRecord {
+        query_id: id.into(),
+        scene_id: scene.into(),
+        target_id: target,
+        subset: Subset::Unique,
+        predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
+        iou,
+        nr3d_correct: false,
+        failure_stage: None,
+        vlm_calls: 1,
+        tokens: 1,
+        latency_ms: 1.0,
+        stages: StageOutcome::default(),
+        hard: None,
+        view_dependent: None,
+        status: "succeeded".into(),
+        error: None,
+    };
+    let write = |dir: &str, recs: &[QueryRecord]| {
+        let d = root.path().join(dir);
+        std::fs::create_dir_all(&d).unwrap();
+        let lines: Vec<String> = recs
+            .iter()
+            .map(|r| serde_json::to_string(r).unwrap() + "\n")
+            .collect();
+        std::fs::write(d.join("results.jsonl"), lines.concat()).unwrap();
+        d
+    };
+    // The base names no targets (an older report); the run loses "a1" and names its target.
+    let base = write(
+        "base",
+        &[
+            rec("a1", "a", None, 0.9),
+            rec("a2", "a", None, 0.9),
+            rec("b1", "b", None, 0.9),
+            rec("b2", "b", None, 0.3),
+        ],
+    );
+    let run = write(
+        "run",
+        &[
+            rec("a1", "a", Some(1), 0.0),
+            rec("a2", "a", Some(2), 0.9),
+            rec("b1", "b", Some(1), 0.9),
+        ],
+    );
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"))
+        .arg("compare")
+        .args([&base, &run])
+        .arg("--dataset")
+        .arg(root.path().join("ds"))
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        out.contains(
+            "3 queries in both reports (1 only in the base, 0 only in the run), 3 target objects"
+        ),
+        "{out}"
+    );
+    assert!(
+        out.contains("Acc@0.25: base 100.0 %, run 66.7 %, difference -33.3 points"),
+        "{out}"
+    );
+    assert!(out.contains("  a#1: -1 of 1 queries"), "{out}");
+    // A folder without results: one line on stderr, a failing exit.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"))
+        .arg("compare")
+        .arg(&base)
+        .arg(root.path().join("scenes"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.trim_end().ends_with("no results.jsonl there"), "{err}");
+}
