@@ -176,28 +176,9 @@ pub fn run(args: CompareArgs) -> Result<()> {
 mod tests {
     use super::*;
     use crate::eval::dataset::Subset;
-    use crate::eval::metrics::StageOutcome;
-    use crate::geometry::Aabb;
 
     fn rec(q: &str, target: u32, iou: f64) -> QueryRecord {
-        QueryRecord {
-            query_id: q.into(),
-            scene_id: "s".into(),
-            target_id: Some(target),
-            subset: Subset::Multiple,
-            predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
-            iou,
-            nr3d_correct: false,
-            failure_stage: None,
-            vlm_calls: 0,
-            tokens: 0,
-            latency_ms: 0.0,
-            stages: StageOutcome::default(),
-            hard: None,
-            view_dependent: None,
-            status: "succeeded".into(),
-            error: None,
-        }
+        crate::eval::metrics::test_record(q, "s", Some(target), iou, Subset::Multiple)
     }
 
     #[test]

@@ -109,29 +109,10 @@ pub fn acc_intervals(records: &[QueryRecord]) -> Option<AccIntervals> {
 mod tests {
     use super::*;
     use crate::eval::dataset::Subset;
-    use crate::eval::metrics::StageOutcome;
-    use crate::geometry::Aabb;
 
     fn rec(scene: &str, target: Option<u32>, q: usize, iou: f64) -> QueryRecord {
-        let b = Aabb::new([0.0; 3], [1.0; 3]);
-        QueryRecord {
-            query_id: format!("{scene}_q{q}"),
-            scene_id: scene.into(),
-            target_id: target,
-            subset: Subset::Unique,
-            predicted: Some(b),
-            iou,
-            nr3d_correct: false,
-            failure_stage: None,
-            vlm_calls: 0,
-            tokens: 0,
-            latency_ms: 0.0,
-            stages: StageOutcome::default(),
-            hard: None,
-            view_dependent: None,
-            status: "succeeded".into(),
-            error: None,
-        }
+        let id = format!("{scene}_q{q}");
+        crate::eval::metrics::test_record(&id, scene, target, iou, Subset::Unique)
     }
 
     #[test]

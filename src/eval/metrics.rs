@@ -147,6 +147,35 @@ pub fn score(query: &Query, objects: &SceneObjects, obs: Observation) -> QueryRe
 
 pub use super::summary::*;
 
+/// A scored record for unit tests: a unit box predicted, one VLM call, 10 tokens, 5 ms.
+#[cfg(test)]
+pub(crate) fn test_record(
+    query_id: &str,
+    scene_id: &str,
+    target_id: Option<u32>,
+    iou: f64,
+    subset: Subset,
+) -> QueryRecord {
+    QueryRecord {
+        query_id: query_id.into(),
+        scene_id: scene_id.into(),
+        target_id,
+        subset,
+        predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
+        iou,
+        nr3d_correct: iou > 0.3,
+        failure_stage: None,
+        vlm_calls: 1,
+        tokens: 10,
+        latency_ms: 5.0,
+        stages: StageOutcome::default(),
+        hard: None,
+        view_dependent: None,
+        status: "succeeded".into(),
+        error: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -262,28 +262,9 @@ pub fn render_markdown(s: &Summary, plot_has_text: bool) -> String {
 mod tests {
     use super::*;
     use crate::eval::dataset::Subset;
-    use crate::eval::metrics::StageOutcome;
-    use crate::geometry::Aabb;
 
     fn rec(id: &str, iou: f64, subset: Subset) -> QueryRecord {
-        QueryRecord {
-            query_id: id.into(),
-            scene_id: "s".into(),
-            target_id: None,
-            subset,
-            predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
-            iou,
-            nr3d_correct: iou > 0.3,
-            failure_stage: None,
-            vlm_calls: 1,
-            tokens: 10,
-            latency_ms: 5.0,
-            stages: StageOutcome::default(),
-            hard: None,
-            view_dependent: None,
-            status: "succeeded".into(),
-            error: None,
-        }
+        crate::eval::metrics::test_record(id, "s", None, iou, subset)
     }
 
     #[test]
