@@ -5,7 +5,7 @@
 use super::interval::{bootstrap, cluster_key, clusters, hit, Interval, RESAMPLES};
 use super::metrics::QueryRecord;
 use anyhow::{Context, Result};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -54,6 +54,7 @@ pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
         .filter_map(|b| Some((b, *by_id.get(b.query_id.as_str())?)))
         .collect();
     let matched = pairs.len();
+    let in_base: HashSet<&str> = base.iter().map(|r| r.query_id.as_str()).collect();
     let deltas = [0.25, 0.5]
         .into_iter()
         .map(|t| {
@@ -84,14 +85,14 @@ pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
     let objects = pairs
         .iter()
         .map(|(b, _)| cluster_key(b))
-        .collect::<std::collections::HashSet<_>>()
+        .collect::<HashSet<_>>()
         .len();
     Comparison {
         matched,
         only_base: base.len() - matched,
         only_run: run
             .iter()
-            .filter(|r| !base.iter().any(|b| b.query_id == r.query_id))
+            .filter(|r| !in_base.contains(r.query_id.as_str()))
             .count(),
         objects,
         deltas,
