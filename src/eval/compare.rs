@@ -21,10 +21,13 @@ pub struct CompareArgs {
     /// resampled alone.
     #[arg(long)]
     pub dataset: Option<PathBuf>,
+    /// Print the comparison as one JSON object (shares, not percentages) instead of text.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// One threshold's figures over the matched queries.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Delta {
     pub threshold: f64,
     pub base: f64,
@@ -33,11 +36,21 @@ pub struct Delta {
     pub difference: f64,
     pub interval: Option<Interval>,
     /// Per object (cluster key) whose hits changed: the net change and its query count.
-    pub changed: Vec<(String, i64, usize)>,
+    pub changed: Vec<Changed>,
+}
+
+/// An object whose queries' hits changed.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Changed {
+    /// `scene#target` (or `query ID` for a record without its target).
+    pub object: String,
+    /// Queries gained less queries lost.
+    pub net: i64,
+    pub queries: usize,
 }
 
 /// The comparison of two reports.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Comparison {
     pub matched: usize,
     pub only_base: usize,
@@ -77,7 +90,11 @@ pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
                 changed: c
                     .into_iter()
                     .filter(|(_, s, _)| *s != 0.0)
-                    .map(|(k, s, n)| (k, s as i64, n))
+                    .map(|(object, s, queries)| Changed {
+                        object,
+                        net: s as i64,
+                        queries,
+                    })
                     .collect(),
             }
         })
@@ -127,9 +144,11 @@ pub fn render(c: &Comparison) -> String {
         }
         let _ = writeln!(o, "objects whose queries changed at {}:", d.threshold);
         let mut changed = d.changed.clone();
-        changed.sort_by(|a, b| a.1.abs().cmp(&b.1.abs()).reverse().then(a.0.cmp(&b.0)));
-        for (k, net, n) in changed {
-            let _ = writeln!(o, "  {k}: {net:+} of {n} queries");
+        changed.sort_by(|a, b| {
+            (a.net.abs().cmp(&b.net.abs()).reverse()).then(a.object.cmp(&b.object))
+        });
+        for c in changed {
+            let _ = writeln!(o, "  {}: {:+} of {} queries", c.object, c.net, c.queries);
         }
     }
     o
@@ -169,7 +188,11 @@ pub fn run(args: CompareArgs) -> Result<()> {
     if c.matched == 0 {
         anyhow::bail!("the two reports share no query id");
     }
-    print!("{}", render(&c));
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&c)?);
+    } else {
+        print!("{}", render(&c));
+    }
     Ok(())
 }
 
@@ -204,15 +227,17 @@ mod tests {
         let d25 = &c.deltas[0];
         assert!((d25.base - 29.0 / 30.0).abs() < 1e-12);
         assert!((d25.difference - (-2.0 / 30.0)).abs() < 1e-12);
-        assert_eq!(
-            d25.changed,
-            vec![("s#0".to_string(), -3, 3), ("s#1".to_string(), 1, 3)]
-        );
+        let ch = |object: &str, net, queries| Changed {
+            object: object.into(),
+            net,
+            queries,
+        };
+        assert_eq!(d25.changed, vec![ch("s#0", -3, 3), ch("s#1", 1, 3)]);
         let iv = d25.interval.expect("clusters");
         assert!(iv.lo < d25.difference && d25.difference < iv.hi, "{iv:?}");
         assert!(iv.hi <= 0.1 && iv.lo >= -0.45, "{iv:?}");
         // At 0.5 only the lost object changes (object 1's gain is an IoU of 0.3).
-        assert_eq!(c.deltas[1].changed, vec![("s#0".to_string(), -3, 3)]);
+        assert_eq!(c.deltas[1].changed, vec![ch("s#0", -3, 3)]);
         let text = render(&c);
         assert!(text.contains("Acc@0.25: base 96.7 %, run 90.0 %, difference -6.7 points"));
         assert!(text.contains("  s#0: -3 of 3 queries"), "{text}");

@@ -406,6 +406,32 @@ fn cli_compare_pairs_two_reports_by_query_and_object() {
         "{out}"
     );
     assert!(out.contains("  a#1: -1 of 1 queries"), "{out}");
+    // The same as JSON, for scripts: shares, the interval, the changed objects.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"))
+        .arg("compare")
+        .args([&base, &run])
+        .arg("--dataset")
+        .arg(root.path().join("ds"))
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let j: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (j["matched"].as_u64(), j["objects"].as_u64()),
+        (Some(3), Some(3))
+    );
+    let d25 = &j["deltas"][0];
+    assert_eq!(d25["threshold"], json!(0.25));
+    assert!(
+        (d25["difference"].as_f64().unwrap() + 1.0 / 3.0).abs() < 1e-9,
+        "{j}"
+    );
+    assert!(d25["interval"]["lo"].as_f64().unwrap() <= d25["difference"].as_f64().unwrap());
+    assert_eq!(
+        d25["changed"],
+        json!([{"object": "a#1", "net": -1, "queries": 1}])
+    );
     // A folder without results: one line on stderr, a failing exit.
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"))
         .arg("compare")
