@@ -97,6 +97,10 @@ pub struct CandidateParams {
     /// How far (m) the top must reach past an object on both sides along an axis: a part
     /// rising from the top's edge (a chair's back over its seat) is not an object on it.
     pub top_inset: f64,
+    /// Offer each object of a colour part, or of a piece standing on a top, that holds
+    /// several side by side: its level tops, grouped by overlapping footprints, and the
+    /// cells nearest each group's footprint (two pillows of one colour on a bed).
+    pub side_by_side: bool,
     /// Most candidates kept per frame (largest first).
     pub max_per_frame: usize,
     /// Box IoU above which the smaller of two candidates is dropped.
@@ -179,6 +183,7 @@ impl Default for CandidateParams {
             top_lift: 0.02,
             top_lift_per_m: 0.01,
             top_inset: 0.05,
+            side_by_side: true,
             max_per_frame: 24,
             dedupe_iou: 0.85,
             beside_detections: true,
@@ -201,7 +206,7 @@ impl Default for CandidateParams {
 /// Version of what [`frame_candidates`] computes from the same frame and settings. Raise it
 /// with every change to its output: cached candidates of another version are not read
 /// (they are computed again where a job needs them, and replaced at the next indexing).
-pub const ALGORITHM_VERSION: u32 = 4;
+pub const ALGORITHM_VERSION: u32 = 5;
 
 /// Settings of [`CandidateParams`] that decide how the candidates are used, not which are
 /// found: changing them keeps the cache.
@@ -369,20 +374,32 @@ pub fn frame_candidates(
             object_of[i] = k;
         }
     }
+    let angle = layout.map_or(0.0, |l| l.angle_deg);
+    // A colour part or a piece on a top, and the objects side by side in it.
+    let with_side_by_side = |r: Vec<usize>| {
+        let mut all = if p.side_by_side {
+            tops::side_by_side(&g, &r, angle, &near, p)
+        } else {
+            Vec::new()
+        };
+        all.insert(0, r);
+        all
+    };
     for whole in object_regions.iter().filter(|r| r.len() >= 2 * p.min_cells) {
         let least = p.min_cells.max((p.min_part * whole.len() as f64) as usize);
         for r in colour_split(&g, whole, p.colour_tol, least, 2) {
             if r.len() < whole.len() * 9 / 10 {
-                let c = to_candidate(&g, &r, CandidateKind::Part, dims);
-                if fits(&c) {
-                    out.push(c);
+                for r in with_side_by_side(r) {
+                    let c = to_candidate(&g, &r, CandidateKind::Part, dims);
+                    if fits(&c) {
+                        out.push(c);
+                    }
                 }
             }
         }
     }
     if p.tops {
         let eye_z = cam.centre().z;
-        let angle = layout.map_or(0.0, |l| l.angle_deg);
         for r in tops::on_tops(&g, &object_regions, &object_of, eye_z, angle, p) {
             // What stands on one top can be several things side by side (two pillows on a
             // bed): each of its colours is offered too, as the object regions' are.
@@ -396,6 +413,7 @@ pub fn frame_candidates(
                 );
             }
             found.insert(0, r);
+            let found: Vec<Vec<usize>> = found.into_iter().flat_map(with_side_by_side).collect();
             for r in &found {
                 let c = to_candidate(&g, r, CandidateKind::OnTop, dims);
                 if fits(&c) {

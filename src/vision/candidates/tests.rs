@@ -124,6 +124,11 @@ fn best_for(cam: &FrameCamera, parts: &[Part], id: u16) -> (Candidate, [f32; 4])
 }
 
 fn run(cam: &FrameCamera, parts: &[Part]) -> (Vec<Candidate>, Vec<u16>) {
+    run_with(cam, parts, &CandidateParams::default())
+}
+
+/// [`run`] with settings `p`.
+fn run_with(cam: &FrameCamera, parts: &[Part], p: &CandidateParams) -> (Vec<Candidate>, Vec<u16>) {
     let (depth, img, ids) = render(cam, parts);
     let c = frame_candidates(
         cam,
@@ -131,7 +136,7 @@ fn run(cam: &FrameCamera, parts: &[Part]) -> (Vec<Candidate>, Vec<u16>) {
         &img,
         Some(&layout()),
         &LayoutParams::default(),
-        &CandidateParams::default(),
+        p,
     );
     (c, ids)
 }
@@ -376,6 +381,31 @@ fn two_pillows_side_by_side_on_a_bed_of_ones_colour_are_candidates_each() {
         let iou = best_iou(&cands, &truth);
         assert!(iou > 0.7, "pillow {id}: {iou} against {truth:?}: {cands:?}");
     }
+}
+
+#[test]
+fn two_pillows_of_one_colour_one_behind_the_other_are_candidates_each() {
+    // A white bed; on its top two blue pillows, the farther one partly hidden behind the
+    // nearer, 20 cm apart. Colour tells them from the bed as one part; their own level
+    // tops, whose footprints do not overlap, tell them from each other.
+    let (white, blue) = ([225, 225, 220], [40, 60, 170]);
+    let mut parts = room();
+    parts.push(part([1.0, 2.2, 0.0], [3.0, 3.9, 0.5], white, 1));
+    parts.push(part([1.5, 2.7, 0.5], [2.3, 3.1, 0.65], blue, 2));
+    parts.push(part([1.7, 3.3, 0.5], [2.5, 3.7, 0.66], blue, 3));
+    let cam = camera([2.0, 0.9, 1.5], [2.0, 3.3, 0.5]);
+    let ious = |p: &CandidateParams| {
+        let (cands, ids) = run_with(&cam, &parts, p);
+        [2, 3].map(|id| best_iou(&cands, &truth_box(&ids, 320, id)))
+    };
+    let on = ious(&CandidateParams::default());
+    assert!(on.iter().all(|&v| v > 0.7), "{on:?}");
+    // Without the split, one of them is only offered together with the other.
+    let off = ious(&CandidateParams {
+        side_by_side: false,
+        ..CandidateParams::default()
+    });
+    assert!(off.iter().any(|&v| v < 0.7), "{off:?}");
 }
 
 #[test]

@@ -12,6 +12,14 @@
 //! rises from the top's edge: a chair's back over its seat, a bed's headboard, a sofa's
 //! back. Such a part runs along one edge of the top, and every edge of a rectangle holds
 //! the rectangle's extreme corner along each axis, whatever its turn.
+//!
+//! A piece, or a colour part of a region, can hold several objects side by side (two
+//! pillows of one colour on a bed, the nearer hiding part of the other). Each object standing on the top has a level top of
+//! its own, and two objects' footprints do not overlap, while the strips one top breaks
+//! into at a grazing view do. So the piece's own level tops are grouped by overlapping
+//! footprints; with two groups or more, each cell of the piece goes to the group whose
+//! footprint lies nearest it (a side face lies on its top's outline), and each group's
+//! connected cells are offered beside the piece (`side_by_side`).
 
 use nalgebra::{Point3, Vector3};
 
@@ -123,6 +131,90 @@ pub(super) fn on_tops(
         }
     }
     out
+}
+
+/// Distance (m) from horizontal point `uv` to the footprint `e` ([`extent`]).
+fn rect_distance(uv: [f64; 2], e: &[[f64; 2]; 2]) -> f64 {
+    let d = |a: usize| (e[a][0] - uv[a]).max(uv[a] - e[a][1]).max(0.0);
+    d(0).hypot(d(1))
+}
+
+/// Do footprints `a` and `b` overlap along both axes?
+fn overlap(a: &[[f64; 2]; 2], b: &[[f64; 2]; 2]) -> bool {
+    (0..2).all(|k| a[k][0] <= b[k][1] && b[k][0] <= a[k][1])
+}
+
+/// The objects side by side in `piece` (a colour part, or a piece standing on a top: see
+/// the module docs), as cell lists; empty when its level tops form one group. `near(a,
+/// b)`: neighbouring cells `a`, `b` lie on one surface (the object regions' depth-step
+/// rule); `angle_deg` the turn of the room's axes.
+pub(super) fn side_by_side(
+    g: &Grid,
+    piece: &[usize],
+    angle_deg: f64,
+    near: &dyn Fn(usize, usize) -> bool,
+    p: &CandidateParams,
+) -> Vec<Vec<usize>> {
+    let sc = angle_deg.to_radians().sin_cos();
+    let n = g.w * g.h;
+    let mut member = vec![usize::MAX; n];
+    for &i in piece {
+        member[i] = 0;
+    }
+    let cos_level = p.top_level_deg.to_radians().cos();
+    let mut level = vec![false; n];
+    for &i in piece {
+        level[i] = normal(g, &member, 0, i).is_some_and(|v| v.z.abs() >= cos_level);
+    }
+    let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
+    let mut sets = Sets::new(n);
+    for (a, b) in pairs(g.w, g.h) {
+        if level[a]
+            && level[b]
+            && near(a, b)
+            && (g.pts[a].z - g.pts[b].z).abs() < lift(a).min(lift(b))
+        {
+            sets.join(a, b);
+        }
+    }
+    let tops: Vec<[[f64; 2]; 2]> = grid_regions(&mut sets, |i| level[i], n)
+        .into_iter()
+        .filter(|t| t.len() >= p.min_cells)
+        .map(|t| extent(t.iter().map(|&i| &g.pts[i]), sc))
+        .collect();
+    if tops.len() < 2 {
+        return Vec::new();
+    }
+    // Tops whose footprints overlap are one object's (the strips of one top).
+    let mut groups = Sets::new(tops.len());
+    for a in 0..tops.len() {
+        for b in a + 1..tops.len() {
+            if overlap(&tops[a], &tops[b]) {
+                groups.join(a, b);
+            }
+        }
+    }
+    let group: Vec<usize> = (0..tops.len()).map(|t| groups.find(t)).collect();
+    if group.iter().all(|&k| k == group[0]) {
+        return Vec::new();
+    }
+    let mut of_group: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for &i in piece {
+        let uv = room_uv(&g.pts[i], sc);
+        let nearest = tops
+            .iter()
+            .enumerate()
+            .map(|(t, e)| (rect_distance(uv, e), group[t]))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((_, k)) = nearest {
+            of_group.entry(k).or_default().push(i);
+        }
+    }
+    of_group
+        .values()
+        .flat_map(|cells| components(g, cells))
+        .filter(|c| c.len() >= p.min_cells && c.len() * 10 < piece.len() * 9)
+        .collect()
 }
 
 /// The pieces of `region` that stand on its level `top` (see the module docs).
