@@ -14,12 +14,13 @@
 //! the rectangle's extreme corner along each axis, whatever its turn.
 //!
 //! A piece, or a colour part of a region, can hold several objects side by side (two
-//! pillows of one colour on a bed, the nearer hiding part of the other). Each object standing on the top has a level top of
-//! its own, and two objects' footprints do not overlap, while the strips one top breaks
-//! into at a grazing view do. So the piece's own level tops are grouped by overlapping
-//! footprints; with two groups or more, each cell of the piece goes to the group whose
-//! footprint lies nearest it (a side face lies on its top's outline), and each group's
-//! connected cells are offered beside the piece (`side_by_side`).
+//! pillows of one colour on a bed, the nearer hiding part of the other). Each object
+//! standing on the top has a level top of its own, and two objects' footprints do not
+//! overlap, while the strips one top breaks into at a grazing view do. So the piece's own
+//! level tops are grouped by overlapping footprints; with two groups or more, each cell of
+//! the piece goes to the group whose footprint lies nearest it (a side face lies on its
+//! top's outline), and each group's connected cells are offered beside the piece
+//! (`side_by_side`).
 
 use nalgebra::{Point3, Vector3};
 
@@ -81,6 +82,44 @@ fn extent<'a>(pts: impl Iterator<Item = &'a Point3<f64>>, sc: (f64, f64)) -> [[f
     e
 }
 
+/// The level tops of the regions `which` of `regions` (cell `i` in region `region_of[i]`,
+/// or `usize::MAX`), largest first: level cells (the surface normal within `top_level_deg`
+/// of vertical) of one region at one height (`top_lift`), neighbours joined where
+/// `joins(a, b)` also holds; tops of fewer than `min_cells` are left out. A box's own top
+/// is level too, at its height.
+fn level_tops(
+    g: &Grid,
+    regions: &[Vec<usize>],
+    which: &[usize],
+    region_of: &[usize],
+    joins: &dyn Fn(usize, usize) -> bool,
+    p: &CandidateParams,
+) -> Vec<Vec<usize>> {
+    let n = g.w * g.h;
+    let cos_level = p.top_level_deg.to_radians().cos();
+    let mut level = vec![false; n];
+    for &k in which {
+        for &i in &regions[k] {
+            level[i] = normal(g, region_of, k, i).is_some_and(|v| v.z.abs() >= cos_level);
+        }
+    }
+    let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
+    let mut sets = Sets::new(n);
+    for (a, b) in pairs(g.w, g.h) {
+        if level[a]
+            && level[b]
+            && region_of[a] == region_of[b]
+            && (g.pts[a].z - g.pts[b].z).abs() < lift(a).min(lift(b))
+            && joins(a, b)
+        {
+            sets.join(a, b);
+        }
+    }
+    let mut tops = grid_regions(&mut sets, |i| level[i], n);
+    tops.retain(|t| t.len() >= p.min_cells);
+    tops
+}
+
 /// The pieces of the object regions `regions` (cell `i` in region `object_of[i]`, or
 /// `usize::MAX`) that stand on one of their level tops (see the module docs), as cell
 /// lists. Only regions of at least `2 * min_cells` are looked at. `eye_z` is the camera's
@@ -94,34 +133,13 @@ pub(super) fn on_tops(
     angle_deg: f64,
     p: &CandidateParams,
 ) -> Vec<Vec<usize>> {
-    let n = g.w * g.h;
-    let big = |k: usize| regions[k].len() >= 2 * p.min_cells;
-    let cos_level = p.top_level_deg.to_radians().cos();
-    let mut level = vec![false; n];
-    for (k, r) in regions.iter().enumerate().filter(|(k, _)| big(*k)) {
-        for &i in r {
-            level[i] = normal(g, object_of, k, i).is_some_and(|v| v.z.abs() >= cos_level);
-        }
-    }
-    // Level cells of one region at one height form a top (a box's own top is level too,
-    // at its height).
-    let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
-    let mut sets = Sets::new(n);
-    for (a, b) in pairs(g.w, g.h) {
-        if level[a]
-            && level[b]
-            && object_of[a] == object_of[b]
-            && (g.pts[a].z - g.pts[b].z).abs() < lift(a).min(lift(b))
-        {
-            sets.join(a, b);
-        }
-    }
-    // Largest first (`grid::regions`), so each region's list is too.
+    let big: Vec<usize> = (0..regions.len())
+        .filter(|&k| regions[k].len() >= 2 * p.min_cells)
+        .collect();
+    // Largest first (`level_tops`), so each region's list is too.
     let mut tops_of: BTreeMap<usize, Vec<Vec<usize>>> = BTreeMap::new();
-    for top in grid_regions(&mut sets, |i| level[i], n) {
-        if top.len() >= p.min_cells {
-            tops_of.entry(object_of[top[0]]).or_default().push(top);
-        }
+    for top in level_tops(g, regions, &big, object_of, &|_, _| true, p) {
+        tops_of.entry(object_of[top[0]]).or_default().push(top);
     }
     let mut out = Vec::new();
     for (k, tops) in tops_of {
@@ -156,30 +174,12 @@ pub(super) fn side_by_side(
     p: &CandidateParams,
 ) -> Vec<Vec<usize>> {
     let sc = angle_deg.to_radians().sin_cos();
-    let n = g.w * g.h;
-    let mut member = vec![usize::MAX; n];
+    let mut member = vec![usize::MAX; g.w * g.h];
     for &i in piece {
         member[i] = 0;
     }
-    let cos_level = p.top_level_deg.to_radians().cos();
-    let mut level = vec![false; n];
-    for &i in piece {
-        level[i] = normal(g, &member, 0, i).is_some_and(|v| v.z.abs() >= cos_level);
-    }
-    let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
-    let mut sets = Sets::new(n);
-    for (a, b) in pairs(g.w, g.h) {
-        if level[a]
-            && level[b]
-            && near(a, b)
-            && (g.pts[a].z - g.pts[b].z).abs() < lift(a).min(lift(b))
-        {
-            sets.join(a, b);
-        }
-    }
-    let tops: Vec<[[f64; 2]; 2]> = grid_regions(&mut sets, |i| level[i], n)
-        .into_iter()
-        .filter(|t| t.len() >= p.min_cells)
+    let tops: Vec<[[f64; 2]; 2]> = level_tops(g, &[piece.to_vec()], &[0], &member, near, p)
+        .iter()
         .map(|t| extent(t.iter().map(|&i| &g.pts[i]), sc))
         .collect();
     if tops.len() < 2 {
