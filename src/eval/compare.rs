@@ -2,7 +2,7 @@
 //! accuracies of each, their difference with its 95 % interval (a bootstrap over target
 //! objects, paired by query: [`super::interval`]), and the objects whose queries changed.
 
-use super::interval::{bootstrap, cluster_key, clusters, hit, Interval, RESAMPLES};
+use super::interval::{bootstrap, clusters, hit, Interval, RESAMPLES};
 use super::metrics::QueryRecord;
 use anyhow::{Context, Result};
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -17,8 +17,8 @@ pub struct CompareArgs {
     /// The report compared with it, over the queries both hold.
     pub run: PathBuf,
     /// Dataset folder (queries.jsonl) naming the targets of records that do not carry
-    /// theirs (reports written before records named them); without it such a record is
-    /// resampled alone.
+    /// theirs (reports written before records named them). Without it a pair takes the
+    /// target the run's record names, and a pair neither names is resampled alone.
     #[arg(long)]
     pub dataset: Option<PathBuf>,
     /// Print the comparison as one JSON object (shares, not percentages) instead of text.
@@ -59,15 +59,23 @@ pub struct Comparison {
     pub deltas: Vec<Delta>,
 }
 
-/// Compare `run` with `base` over the queries (by id) both hold.
+/// Compare `run` with `base` over the queries (by id) both hold. A pair is resampled with
+/// its target object, named by the base record or else by the run's.
 pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
     let by_id: HashMap<&str, &QueryRecord> = run.iter().map(|r| (r.query_id.as_str(), r)).collect();
-    let pairs: Vec<(&QueryRecord, &QueryRecord)> = base
+    let named: Vec<(QueryRecord, &QueryRecord)> = base
         .iter()
-        .filter_map(|b| Some((b, *by_id.get(b.query_id.as_str())?)))
+        .filter_map(|b| {
+            let r = *by_id.get(b.query_id.as_str())?;
+            let mut b = b.clone();
+            b.target_id = b.target_id.or(r.target_id);
+            Some((b, r))
+        })
         .collect();
+    let pairs: Vec<(&QueryRecord, &QueryRecord)> = named.iter().map(|(b, r)| (b, *r)).collect();
     let matched = pairs.len();
     let in_base: HashSet<&str> = base.iter().map(|r| r.query_id.as_str()).collect();
+    let mut objects = 0;
     let deltas = [0.25, 0.5]
         .into_iter()
         .map(|t| {
@@ -75,6 +83,7 @@ pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
                 f64::from(u8::from(hit(r, t))) - f64::from(u8::from(hit(b, t)))
             };
             let c = clusters(pairs.iter().map(|(b, r)| (*b, d(b, r))));
+            objects = c.len();
             let sums: Vec<(f64, usize)> = c.iter().map(|(_, s, n)| (*s, *n)).collect();
             let share = |f: &dyn Fn(&QueryRecord, &QueryRecord) -> bool| {
                 let k = pairs.iter().filter(|(b, r)| f(b, r)).count();
@@ -99,11 +108,6 @@ pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
             }
         })
         .collect();
-    let objects = pairs
-        .iter()
-        .map(|(b, _)| cluster_key(b))
-        .collect::<HashSet<_>>()
-        .len();
     Comparison {
         matched,
         only_base: base.len() - matched,
@@ -241,6 +245,30 @@ mod tests {
         let text = render(&c);
         assert!(text.contains("Acc@0.25: base 96.7 %, run 90.0 %, difference -6.7 points"));
         assert!(text.contains("  s#0: -3 of 3 queries"), "{text}");
+    }
+
+    #[test]
+    fn the_run_names_the_targets_an_older_base_does_not() {
+        // 4 objects of 2 queries; the base's records predate target ids.
+        let run: Vec<QueryRecord> = (0..8)
+            .map(|i| rec(&format!("q{i}"), i / 2, if i < 2 { 0.0 } else { 0.6 }))
+            .collect();
+        let base: Vec<QueryRecord> = run
+            .iter()
+            .map(|r| QueryRecord {
+                target_id: None,
+                iou: 0.6,
+                ..r.clone()
+            })
+            .collect();
+        let c = compare(&base, &run);
+        assert_eq!((c.matched, c.objects), (8, 4));
+        let lost = Changed {
+            object: "s#0".into(),
+            net: -2,
+            queries: 2,
+        };
+        assert_eq!(c.deltas[0].changed, vec![lost]);
     }
 
     #[test]
