@@ -22,7 +22,9 @@
 //!    and in a group of three or more, each two members that touch across such a step;
 //! 6. **on tops**: an object standing on a level top of its region (a box on a table of
 //!    its colour, a lamp on a nightstand), split from it by height (`tops`), and each
-//!    colour of it (two pillows side by side on a bed);
+//!    colour of it (two pillows side by side on a bed). In a colour part (4) or such a
+//!    piece, objects side by side, each with a level top of its own, are offered each too
+//!    (two pillows of one colour: `tops::side_by_side`);
 //! 7. **on walls**: wall cells joined by colour, with the free cells of a colour other than
 //!    the wall's that touch them, of objects that lie within twice the structure margin of
 //!    that wall as a whole (a window standing out past the margin in part; not a chair's
