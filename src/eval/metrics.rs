@@ -52,6 +52,9 @@ pub struct QueryRecord {
     /// queries about one object are resampled together for the report's intervals.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target_id: Option<u32>,
+    /// The target's class (`target_label` of the query; absent in older results).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_label: Option<String>,
     pub subset: Subset,
     /// Predicted box, `null` when the job produced none.
     pub predicted: Option<Aabb>,
@@ -129,6 +132,7 @@ pub fn score(query: &Query, objects: &SceneObjects, obs: Observation) -> QueryRe
         query_id: query.query_id.clone(),
         scene_id: query.scene_id.clone(),
         target_id: Some(query.target_id),
+        target_label: Some(query.target_label.clone()),
         subset: query.subset,
         predicted: obs.predicted,
         iou,
@@ -160,6 +164,7 @@ pub(crate) fn test_record(
         query_id: query_id.into(),
         scene_id: scene_id.into(),
         target_id,
+        target_label: None,
         subset,
         predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
         iou,
@@ -237,6 +242,11 @@ mod tests {
             obs(Some(p), 1.0),
         );
         assert!(r.nr3d_correct);
+        assert_eq!(
+            r.target_label.as_deref(),
+            Some("chair"),
+            "the query's class"
+        );
         // 0.008 / 1.0
         assert!((r.iou - 0.008).abs() < 1e-9, "{}", r.iou);
         assert_eq!(r.failure_stage.as_deref(), Some("projection"));

@@ -126,6 +126,9 @@ pub fn write_summary(out_dir: &Path, records: &[QueryRecord]) -> Result<(Summary
     Ok((summary, files))
 }
 
+/// Most classes in the markdown's per-class table (all are in summary.json).
+const CLASS_ROWS: usize = 20;
+
 fn pct(x: f64) -> String {
     format!("{:.1} %", 100.0 * x)
 }
@@ -176,6 +179,31 @@ pub fn render_markdown(s: &Summary, plot_has_text: bool) -> String {
             pct(iv.acc_05.lo),
             pct(iv.acc_05.hi)
         );
+    }
+    if !s.by_class.is_empty() {
+        let _ = writeln!(
+            o,
+            "\n## Per target class (most queries lost first)\n\n\
+             | class | n | Acc@0.25 | Acc@0.5 | mean IoU |\n|---|---|---|---|---|"
+        );
+        for c in s.by_class.iter().take(CLASS_ROWS) {
+            let _ = writeln!(
+                o,
+                "| {} | {} | {} | {} | {:.2} |",
+                c.label,
+                c.n,
+                pct(c.acc_025),
+                pct(c.acc_05),
+                c.mean_iou
+            );
+        }
+        if s.by_class.len() > CLASS_ROWS {
+            let _ = writeln!(
+                o,
+                "\n{} more classes in summary.json (`by_class`).",
+                s.by_class.len() - CLASS_ROWS
+            );
+        }
     }
     let _ = writeln!(
         o,
@@ -290,6 +318,41 @@ mod tests {
         // A broken line in the middle is an error, not silently skipped.
         std::fs::write(&path, "garbage\n{}\n").unwrap();
         assert!(read_results(&path).is_err());
+    }
+
+    #[test]
+    fn per_class_accuracies_lose_the_most_queries_first() {
+        let labelled = |id: &str, label: &str, iou: f64| QueryRecord {
+            target_label: Some(label.into()),
+            ..rec(id, iou, Subset::Multiple)
+        };
+        let recs = vec![
+            labelled("c1", "chair", 0.9),
+            labelled("c2", "chair", 0.3),
+            labelled("c3", "chair", 0.0),
+            labelled("l1", "lamp", 0.0),
+            labelled("l2", "lamp", 0.1),
+            labelled("t1", "table", 0.6),
+            rec("old", 0.0, Subset::Unique),
+        ];
+        let s = crate::eval::metrics::summarize(&recs);
+        let order: Vec<&str> = s.by_class.iter().map(|c| c.label.as_str()).collect();
+        assert_eq!(order, ["lamp", "chair", "table"]);
+        let chair = &s.by_class[1];
+        assert_eq!(chair.n, 3);
+        assert!((chair.acc_025 - 2.0 / 3.0).abs() < 1e-12);
+        assert!((chair.acc_05 - 1.0 / 3.0).abs() < 1e-12);
+        assert!((chair.mean_iou - 0.4).abs() < 1e-12);
+        let md = render_markdown(&s, true);
+        assert!(md.contains("| lamp | 2 | 0.0 % | 0.0 % | 0.05 |"), "{md}");
+        assert!(
+            md.contains("| chair | 3 | 66.7 % | 33.3 % | 0.40 |"),
+            "{md}"
+        );
+        // Records without labels (older results) give no per-class section.
+        let unlabelled = crate::eval::metrics::summarize(&recs[6..]);
+        assert!(unlabelled.by_class.is_empty());
+        assert!(!render_markdown(&unlabelled, true).contains("Per target class"));
     }
 
     #[test]

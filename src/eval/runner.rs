@@ -342,13 +342,19 @@ pub async fn run(cfg: &EvalConfig) -> Result<EvalOutcome> {
     }
     bar.finish_and_clear();
     drop(stream);
-    let selected_ids: std::collections::HashSet<&str> =
-        selected.iter().map(|q| q.query_id.as_str()).collect();
+    let selected_by_id: HashMap<&str, &Query> =
+        selected.iter().map(|q| (q.query_id.as_str(), q)).collect();
+    // Records resumed from older results name their target from the dataset.
     let records: Vec<QueryRecord> = log
         .records()
         .iter()
-        .filter(|r| selected_ids.contains(r.query_id.as_str()))
-        .cloned()
+        .filter_map(|r| {
+            let q = selected_by_id.get(r.query_id.as_str())?;
+            let mut r = r.clone();
+            r.target_id = r.target_id.or(Some(q.target_id));
+            r.target_label = r.target_label.or_else(|| Some(q.target_label.clone()));
+            Some(r)
+        })
         .collect();
     let out = cfg.out.clone();
     let (summary, _) =

@@ -82,6 +82,48 @@ pub struct Latency {
     pub mean: f64,
 }
 
+/// ScanRefer accuracies of the queries whose target is of one class.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ClassAcc {
+    pub label: String,
+    pub n: usize,
+    pub acc_025: f64,
+    pub acc_05: f64,
+    /// Mean 3D IoU (0 for a query without a box).
+    pub mean_iou: f64,
+}
+
+/// Per target class, the classes that lose the most queries first (at 0.25, then at 0.5,
+/// then by name). Records without a label (older results) are left out.
+pub fn by_class(records: &[QueryRecord]) -> Vec<ClassAcc> {
+    let mut of: BTreeMap<&str, Vec<&QueryRecord>> = BTreeMap::new();
+    for r in records {
+        if let Some(l) = &r.target_label {
+            of.entry(l.as_str()).or_default().push(r);
+        }
+    }
+    let mut out: Vec<ClassAcc> = of
+        .into_iter()
+        .map(|(label, rs)| {
+            let a = acc(&rs);
+            ClassAcc {
+                label: label.to_string(),
+                n: a.n,
+                acc_025: a.acc_025,
+                acc_05: a.acc_05,
+                mean_iou: rs.iter().map(|r| r.iou).sum::<f64>() / rs.len().max(1) as f64,
+            }
+        })
+        .collect();
+    let lost = |c: &ClassAcc, a: f64| ((1.0 - a) * c.n as f64).round() as usize;
+    out.sort_by(|a, b| {
+        (lost(b, b.acc_025), lost(b, b.acc_05))
+            .cmp(&(lost(a, a.acc_025), lost(a, a.acc_05)))
+            .then_with(|| a.label.cmp(&b.label))
+    });
+    out
+}
+
 /// Everything written to `summary.json`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -95,6 +137,9 @@ pub struct Summary {
     pub latency_ms: Latency,
     /// How many queries failed first at each stage.
     pub failure_stages: BTreeMap<String, usize>,
+    /// Accuracies per target class ([`by_class`]; empty for results without labels).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub by_class: Vec<ClassAcc>,
 }
 
 fn acc(records: &[&QueryRecord]) -> AccBlock {
@@ -208,5 +253,6 @@ pub fn summarize(records: &[QueryRecord]) -> Summary {
             mean: mean(&|r| r.latency_ms),
         },
         failure_stages,
+        by_class: by_class(records),
     }
 }

@@ -252,6 +252,10 @@ async fn runs_scores_and_resumes() {
         ),
         (2, 1)
     );
+    // Per class, the most queries lost first: lamp and table lose theirs at 0.25, the
+    // chairs one at 0.5.
+    let classes: Vec<&str> = sm.by_class.iter().map(|c| c.label.as_str()).collect();
+    assert_eq!(classes, ["lamp", "table", "chair"]);
     assert_eq!(sm.mean_vlm_calls, (3.0 + 3.0 + 0.0 + 1.0) / 4.0);
     assert_eq!(sm.mean_tokens, (1200.0 + 1200.0 + 0.0 + 57.0) / 4.0);
     let recs = read_results(&c.out.join("results.jsonl")).unwrap();
@@ -271,6 +275,23 @@ async fn runs_scores_and_resumes() {
     assert_eq!(st.lock().unwrap().job_posts, 4);
     assert_eq!(st.lock().unwrap().uploads.len(), 2);
     assert_eq!(o.summary.n_queries, 4);
+
+    // Records of an older report (no target id or class) take them from the dataset.
+    let path = c.out.join("results.jsonl");
+    let older: Vec<String> = std::fs::read_to_string(&path)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+            let m = v.as_object_mut().unwrap();
+            assert!(m.remove("target_id").is_some() && m.remove("target_label").is_some());
+            format!("{v}\n")
+        })
+        .collect();
+    std::fs::write(&path, older.concat()).unwrap();
+    let o = run(&c).await.unwrap();
+    assert_eq!((o.ran, o.skipped), (0, 4));
+    assert_eq!(o.summary.by_class, sm.by_class);
 
     // Drop one record: only that query runs again, only its scene is uploaded.
     let path = c.out.join("results.jsonl");
@@ -340,6 +361,7 @@ fn cli_compare_pairs_two_reports_by_query_and_object() {
         query_id: id.into(),
         scene_id: scene.into(),
         target_id: target,
+        target_label: None,
         subset: Subset::Unique,
         predicted: Some(Aabb::new([0.0; 3], [1.0; 3])),
         iou,
