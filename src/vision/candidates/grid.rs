@@ -171,13 +171,20 @@ pub(super) fn build_grid(
 
 /// Neighbour pairs (right and below) of every cell.
 pub(super) fn pairs(w: usize, h: usize) -> impl Iterator<Item = (usize, usize)> {
-    (0..h).flat_map(move |y| {
-        (0..w).flat_map(move |x| {
-            let i = y * w + x;
-            let right = (x + 1 < w).then_some((i, i + 1));
-            let below = (y + 1 < h).then_some((i, i + w));
-            right.into_iter().chain(below)
-        })
+    pairs_from(w, h, 0..w * h)
+}
+
+/// The pairs of [`pairs`] whose first cell is one of `cells`.
+pub(super) fn pairs_from(
+    w: usize,
+    h: usize,
+    cells: impl Iterator<Item = usize>,
+) -> impl Iterator<Item = (usize, usize)> {
+    cells.flat_map(move |i| {
+        let (x, y) = (i % w, i / w);
+        let right = (x + 1 < w).then_some((i, i + 1));
+        let below = (y + 1 < h).then_some((i, i + w));
+        right.into_iter().chain(below)
     })
 }
 

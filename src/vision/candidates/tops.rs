@@ -28,7 +28,7 @@ use std::collections::BTreeMap;
 
 use crate::geometry::cloud::median;
 
-use super::grid::{components, pairs, regions as grid_regions, Grid, Sets};
+use super::grid::{components, pairs_from, regions as grid_regions, Grid, Sets};
 use super::CandidateParams;
 
 /// Most tops looked at per region (the largest).
@@ -105,7 +105,10 @@ fn level_tops(
     }
     let lift = |i: usize| p.top_lift + p.top_lift_per_m * g.z[i];
     let mut sets = Sets::new(n);
-    for (a, b) in pairs(g.w, g.h) {
+    // Only the regions' own cells can be level: the pairs they start are every pair worth
+    // looking at, not the whole grid's (this runs once per colour part).
+    let cells = which.iter().flat_map(|&k| regions[k].iter().copied());
+    for (a, b) in pairs_from(g.w, g.h, cells) {
         if level[a]
             && level[b]
             && region_of[a] == region_of[b]
