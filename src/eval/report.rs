@@ -190,7 +190,7 @@ pub fn render_markdown(s: &Summary, plot_has_text: bool) -> String {
             let _ = writeln!(
                 o,
                 "| {} | {} | {} | {} | {:.2} |",
-                c.label,
+                c.label.replace('|', "\\|"),
                 c.n,
                 pct(c.acc_025),
                 pct(c.acc_05),
@@ -333,11 +333,12 @@ mod tests {
             labelled("l1", "lamp", 0.0),
             labelled("l2", "lamp", 0.1),
             labelled("t1", "table", 0.6),
+            labelled("p1", "tv|stand", 0.9),
             rec("old", 0.0, Subset::Unique),
         ];
         let s = crate::eval::metrics::summarize(&recs);
         let order: Vec<&str> = s.by_class.iter().map(|c| c.label.as_str()).collect();
-        assert_eq!(order, ["lamp", "chair", "table"]);
+        assert_eq!(order, ["lamp", "chair", "table", "tv|stand"]);
         let chair = &s.by_class[1];
         assert_eq!(chair.n, 3);
         assert!((chair.acc_025 - 2.0 / 3.0).abs() < 1e-12);
@@ -349,8 +350,10 @@ mod tests {
             md.contains("| chair | 3 | 66.7 % | 33.3 % | 0.40 |"),
             "{md}"
         );
+        // A label's `|` is escaped, so the row keeps its five cells.
+        assert!(md.contains("| tv\\|stand | 1 | 100.0 % |"), "{md}");
         // Records without labels (older results) give no per-class section.
-        let unlabelled = crate::eval::metrics::summarize(&recs[6..]);
+        let unlabelled = crate::eval::metrics::summarize(&recs[7..]);
         assert!(unlabelled.by_class.is_empty());
         assert!(!render_markdown(&unlabelled, true).contains("Per target class"));
     }

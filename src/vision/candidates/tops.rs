@@ -87,9 +87,9 @@ fn extent<'a>(pts: impl Iterator<Item = &'a Point3<f64>>, sc: (f64, f64)) -> [[f
 /// of vertical) of one region at one height (`top_lift`), neighbours joined where
 /// `joins(a, b)` also holds; tops of fewer than `min_cells` are left out. A box's own top
 /// is level too, at its height.
-fn level_tops(
+fn level_tops<R: AsRef<[usize]>>(
     g: &Grid,
-    regions: &[Vec<usize>],
+    regions: &[R],
     which: &[usize],
     region_of: &[usize],
     joins: &dyn Fn(usize, usize) -> bool,
@@ -99,7 +99,7 @@ fn level_tops(
     let cos_level = p.top_level_deg.to_radians().cos();
     let mut level = vec![false; n];
     for &k in which {
-        for &i in &regions[k] {
+        for &i in regions[k].as_ref() {
             level[i] = normal(g, region_of, k, i).is_some_and(|v| v.z.abs() >= cos_level);
         }
     }
@@ -107,7 +107,9 @@ fn level_tops(
     let mut sets = Sets::new(n);
     // Only the regions' own cells can be level: the pairs they start are every pair worth
     // looking at, not the whole grid's (this runs once per colour part).
-    let cells = which.iter().flat_map(|&k| regions[k].iter().copied());
+    let cells = which
+        .iter()
+        .flat_map(|&k| regions[k].as_ref().iter().copied());
     for (a, b) in pairs_from(g.w, g.h, cells) {
         if level[a]
             && level[b]
@@ -181,7 +183,7 @@ pub(super) fn side_by_side(
     for &i in piece {
         member[i] = 0;
     }
-    let tops: Vec<[[f64; 2]; 2]> = level_tops(g, &[piece.to_vec()], &[0], &member, near, p)
+    let tops: Vec<[[f64; 2]; 2]> = level_tops(g, &[piece], &[0], &member, near, p)
         .iter()
         .map(|t| extent(t.iter().map(|&i| &g.pts[i]), sc))
         .collect();
