@@ -25,6 +25,7 @@ use super::view_clouds::{
 use super::vlm_log::VlmLog;
 use super::{exports, ms, step, VlmGrounder};
 use crate::geometry::ensemble::{find_views_with_room, single_view_box, CandidateFrame};
+use crate::geometry::floor_reach::stand_on_floor;
 use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::round_back::round_back;
 use crate::geometry::support::{extend_to_support, median_point};
@@ -321,16 +322,18 @@ pub async fn run(
     let flat_depth = g.params.geometry.layout.flat_depth_for(target_class);
     // The room's floor.
     let sp = &g.params.geometry.support;
-    let floor = if down && sp.enabled && sp.floor_reach && g.params.geometry.layout.enabled {
-        match &walls {
-            Some(room) => room.floor,
-            None => scene_room(ctx, g.params.geometry.layout.clone())
-                .await?
-                .and_then(|r| r.floor),
-        }
-    } else {
-        None
-    };
+    let standing = down && sp.stands(target_class);
+    let floor =
+        if down && sp.enabled && (sp.floor_reach || standing) && g.params.geometry.layout.enabled {
+            match &walls {
+                Some(room) => room.floor,
+                None => scene_room(ctx, g.params.geometry.layout.clone())
+                    .await?
+                    .and_then(|r| r.floor),
+            }
+        } else {
+            None
+        };
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
@@ -422,9 +425,15 @@ pub async fn run(
             let anchor_kept: &[Point3<f64>] = &anchor_kept;
             let bulk = median_point(anchor_kept).unwrap_or_default();
             let support = fusion.aabb.map(|b| {
+                // A table, a chair, a bed: on the floor, whatever lies just below.
+                let (b, stood) = match floor.filter(|_| standing && params.support.enabled) {
+                    Some(f) => stand_on_floor(&b, f, params.support.max_gap_column),
+                    None => (b, None),
+                };
                 let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, params);
                 let bottom_moved = moved.iter().any(|m| m.axis == "z" && m.side == "min");
-                let (b, hidden, reach) = if down && params.support.enabled && !bottom_moved {
+                let stood_or_moved = bottom_moved || stood.is_some();
+                let (b, hidden, reach) = if down && params.support.enabled && !stood_or_moved {
                     let v = super::bottom::BottomViews {
                         anchor: &anchor_view,
                         anchor_box,
@@ -452,7 +461,7 @@ pub async fn run(
                 let placed = moved.iter().any(|m| m.axis != "z");
                 let (b, round) =
                     round_back(&b, &fusion.kept, eye.into(), placed, &params.round_back);
-                (b, moved, planar, hidden, reach, round)
+                (b, moved, planar, hidden, reach, round, stood)
             });
             let support_ms = ms(tsup);
             // The masks of the views used and the object's points, written out as encoded.
@@ -480,9 +489,10 @@ pub async fn run(
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved, planar, hidden_base, floor_reach, round_back) = support.ok_or_else(|| {
-        JobFailure::new("projection_failed", "no points survived outlier removal")
-    })?;
+    let (bbox, moved, planar, hidden_base, floor_reach, round_back, floor_standing) = support
+        .ok_or_else(|| {
+            JobFailure::new("projection_failed", "no points survived outlier removal")
+        })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
     let exported = exports?;
     let view_json: Vec<_> = views
@@ -498,7 +508,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_standing": floor_standing, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

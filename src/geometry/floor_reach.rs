@@ -23,6 +23,14 @@
 //! object is cut there), whose camera looks too far off upright, or whose line of sight
 //! does not go down says nothing; a view whose line meets the floor elsewhere vetoes the
 //! move.
+//!
+//! Some classes stand on the floor whatever the views say ([`stand_on_floor`]): a table,
+//! a desk, a chair, a sofa, a bed. Their legs are as thin as a pole, and what lies just
+//! below their measured bottom is often not what holds them up: the seats of chairs pushed
+//! in under a table's edge form a level layer 30 cm under its top, all around it, and
+//! support completion would set the table on them. For these classes (the query's target
+//! class, from `support.standing`) the bottom goes to the room's floor before support
+//! completion looks down, which then finds the measured floor there.
 
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
@@ -83,6 +91,33 @@ pub fn extend_to_floor_reach(
         to: out.min[2],
         floor,
         views: verdicts,
+    };
+    (out, Some(record))
+}
+
+/// The move of a floor-standing object's bottom onto the floor ([`stand_on_floor`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FloorStand {
+    pub from: f64,
+    pub to: f64,
+    pub floor: f64,
+}
+
+/// The box `b` of an object of a class that stands on the floor, with its bottom on the
+/// `floor` when it floats above it by at most `max_gap` (farther, the box is not such an
+/// object's, whatever the class says), and the record (`None` when the bottom is on or
+/// below the floor, or too far above it).
+pub fn stand_on_floor(b: &Aabb, floor: f64, max_gap: f64) -> (Aabb, Option<FloorStand>) {
+    let gap = b.min[2] - floor;
+    if gap <= 0.0 || gap > max_gap || b.max[2] <= floor {
+        return (*b, None);
+    }
+    let mut out = *b;
+    out.min[2] = floor;
+    let record = FloorStand {
+        from: b.min[2],
+        to: floor,
+        floor,
     };
     (out, Some(record))
 }

@@ -94,6 +94,11 @@ pub struct SupportParams {
     /// query's target class, whole or by its last word): their bottom face never moves
     /// down, since the layer below a window is a cabinet or table in front of the wall.
     pub hanging: Vec<String>,
+    /// Classes that stand on the floor (compared like `hanging`): with the room's floor
+    /// known, their bottom goes onto it before the search for a support below
+    /// ([`super::floor_reach::stand_on_floor`]; the seats of chairs pushed in under a table
+    /// are not what holds it up). Empty: every class looks for its support.
+    pub standing: Vec<String>,
     /// Classes besides `hanging` that are flat against a wall (a door stands on the floor,
     /// but is as thin as a picture): only these and `hanging` get [`super::planar`]'s depth.
     pub flat: Vec<String>,
@@ -133,6 +138,11 @@ impl SupportParams {
     /// Does an object of `class` hang on a wall (no downward completion)?
     pub fn hangs(&self, class: &str) -> bool {
         class_in(&self.hanging, class)
+    }
+
+    /// Does an object of `class` stand on the floor (and not hang)?
+    pub fn stands(&self, class: &str) -> bool {
+        class_in(&self.standing, class) && !self.hangs(class)
     }
 
     /// Is an object of `class` flat against a wall (see [`super::planar`])?
@@ -188,6 +198,27 @@ impl Default for SupportParams {
                 "board",
                 "clock",
                 "sign",
+            ]
+            .map(String::from)
+            .to_vec(),
+            standing: [
+                "table",
+                "desk",
+                "chair",
+                "armchair",
+                "stool",
+                "sofa",
+                "couch",
+                "bed",
+                "dresser",
+                "nightstand",
+                "wardrobe",
+                "bookshelf",
+                "bookcase",
+                "refrigerator",
+                "toilet",
+                "bathtub",
+                "piano",
             ]
             .map(String::from)
             .to_vec(),

@@ -160,3 +160,46 @@ async fn points_on_a_wall_of_the_room_are_cut_from_an_object_that_is_not_flat() 
     }
     assert!(cut > 0, "no job cut a room wall: {on:?}");
 }
+
+#[tokio::test]
+async fn an_object_of_a_class_that_stands_on_the_floor_gets_its_bottom_on_the_room_floor() {
+    let f = Fixture::start(vec![], 10_000).await;
+    let support = GeometryParams::default().support;
+    let mut labels: Vec<String> = f.dets.values().flatten().map(|d| d.label.clone()).collect();
+    labels.sort();
+    labels.dedup();
+    let (mut standing, mut other) = (0, 0);
+    for class in labels.into_iter().filter(|l| !support.is_flat(l)) {
+        let Some(&frame) = f.frames_with(&class, 1).first() else {
+            continue;
+        };
+        f.vlm
+            .script_push(vec![analysis(&class), pick_image(format!("{frame:05}"))]);
+        let job = f.run_job(&format!("the {class}")).await;
+        assert_eq!(job["status"], "succeeded", "{job:#}");
+        let proj = &steps(&job, "projection")[0]["outputs"];
+        let stood = &proj["floor_standing"];
+        let fused_bottom = proj["fused_box"]["min"][2].as_f64().expect("fused box");
+        let bottom = aabb(&job["result"]["box"]).min[2];
+        eprintln!("{class}: fused bottom {fused_bottom:.3}, box bottom {bottom:.3}, {stood}");
+        if support.stands(&class) {
+            standing += 1;
+            // Its bottom moved onto the floor unless the points already reached it, and
+            // support completion then settled it on the measured floor.
+            if fused_bottom > 0.05 {
+                let to = stood["to"]
+                    .as_f64()
+                    .unwrap_or_else(|| panic!("{class}: {proj}"));
+                assert!(to.abs() < 0.05, "{class}: {stood}");
+            }
+            assert!(bottom.abs() < 0.05, "{class}: bottom {bottom}, {stood}");
+        } else {
+            other += 1;
+            assert!(stood.is_null(), "{class}: {stood}");
+        }
+    }
+    assert!(
+        standing > 0 && other > 0,
+        "{standing} standing, {other} other"
+    );
+}
