@@ -14,19 +14,39 @@ pub struct CaptureParams {
     /// `sens` (ScanNet .sens; a raw body with `Content-Type: application/octet-stream`
     /// or inside an archive), `tum` (TUM RGB-D folder), `nerfstudio` (`transforms.json`
     /// with depth) or `arkitscenes` (ARKitScenes raw `lowres_*`). Omitted: detected.
+    #[param(value_type = Option<FormatName>, inline)]
     pub format: Option<String>,
     /// Keep every N-th frame of a capture (default 1: all).
+    #[param(value_type = Option<u64>, minimum = 1)]
     pub every: Option<String>,
     /// Longest time in seconds between a frame and each pose it is interpolated from
     /// (TUM, ARKitScenes; default 0.1). Frames further away are kept but unusable.
+    #[param(value_type = Option<f64>, exclusive_minimum = 0)]
     pub max_pose_gap: Option<String>,
-    /// TUM intrinsics when the folder has no `intrinsics.txt` (pixels).
+    /// TUM intrinsics when the folder has no `intrinsics.txt` (pixels; `fx`, `fy`, `cx`
+    /// and `cy` together or none of them).
+    #[param(value_type = Option<f64>, exclusive_minimum = 0)]
     pub fx: Option<String>,
+    #[param(value_type = Option<f64>, exclusive_minimum = 0)]
     pub fy: Option<String>,
+    #[param(value_type = Option<f64>)]
     pub cx: Option<String>,
+    #[param(value_type = Option<f64>)]
     pub cy: Option<String>,
     /// nerfstudio: metres per depth-image unit (default 0.001).
+    #[param(value_type = Option<f64>, exclusive_minimum = 0)]
     pub depth_unit: Option<String>,
+}
+
+/// The capture formats `format` names (the schema of that parameter).
+#[derive(utoipa::ToSchema)]
+#[schema(rename_all = "lowercase")]
+#[allow(dead_code)] // Only documents the parameter, which is parsed by `CaptureFormat::parse`.
+enum FormatName {
+    Sens,
+    Tum,
+    Nerfstudio,
+    Arkitscenes,
 }
 
 fn invalid(detail: String) -> ApiError {

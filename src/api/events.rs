@@ -15,12 +15,27 @@ use super::auth::Caller;
 use super::jobs::{job_body, visible_job};
 use super::{ApiError, AppState};
 
+/// One event of the stream (a Server-Sent Event: its `event`, `data` and `id` fields).
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)] // Only documents the stream; events are built by `Event`.
+pub struct JobEvent {
+    /// `step`, `status`, or `done` (the last event).
+    #[schema(pattern = "^(step|status|done)$")]
+    event: String,
+    /// JSON: the trace step, `{status, attempts}`, or the job (`done`).
+    data: String,
+    /// The event id to resume after (`Last-Event-ID`); `done` has none.
+    #[schema(pattern = "^[0-9]+$")]
+    id: Option<String>,
+}
+
 /// A job's events as a stream.
 #[utoipa::path(get, path = "/v1/jobs/{id}/events", tag = "jobs",
     params(("id" = String, Path),
-           ("Last-Event-ID" = Option<String>, Header, description = "Resume after this event id")),
-    responses((status = 200, content_type = "text/event-stream", body = String,
-               description = "`event: step` (data: the trace step), `event: status` (data: {status, attempts}), each with an `id`; finally `event: done` (data: the job)"),
+           ("Last-Event-ID" = Option<i64>, Header, minimum = 0, nullable = false,
+            description = "Resume after this event id (an `id` of this stream; none: from the start)")),
+    responses((status = 200, content_type = "text/event-stream", body = JobEvent,
+               description = "`event: step` (data: the trace step), `event: status` (data: {status, attempts}), each with an `id`; finally `event: done` (data: the job). The schema is that of one event."),
               (status = 400, body = super::Problem, content_type = "application/problem+json"),
               (status = 401, body = super::Problem, content_type = "application/problem+json"),
               (status = 404, body = super::Problem, content_type = "application/problem+json")),

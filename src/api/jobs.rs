@@ -19,19 +19,110 @@ use crate::store::webhooks::Delivery;
 use crate::store::{JobRecord, JobStatus, ListJobs, NewJobs};
 
 /// `query` for one job, or `queries` for one job per query (answered as `{"jobs": [...]}`).
-#[derive(Debug, Deserialize, utoipa::ToSchema)]
+/// Its schema ([`create_job_schema`]) states that exactly one of the two is given.
+#[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CreateJob {
     pub scene_id: String,
-    /// The description of the object, e.g. "the black chair next to the window" (not
-    /// blank, at most 2000 characters).
-    #[schema(min_length = 1, max_length = 2000, pattern = "\\S")]
     pub query: Option<String>,
-    /// Several descriptions at once (1 to 100); one job each, in this order.
-    #[schema(min_items = 1, max_items = 100)]
     pub queries: Option<Vec<String>>,
-    /// http(s) URL POSTed the job (signed per Standard Webhooks) when it ends.
     pub webhook_url: Option<String>,
+}
+
+impl utoipa::PartialSchema for CreateJob {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        create_job_schema().into()
+    }
+}
+
+impl utoipa::ToSchema for CreateJob {}
+
+/// A character `str::trim` keeps: the pattern of a description that is not blank (JSON
+/// Schema's `\S` differs from Rust's whitespace in U+0085 and U+FEFF).
+const NOT_BLANK: &str =
+    "[^\\t-\\r \\u0085\\u00a0\\u1680\\u2000-\\u200a\\u2028\\u2029\\u202f\\u205f\\u3000]";
+
+/// `CreateJob` as a contract: one of two objects, `{scene_id, query}` or `{scene_id,
+/// queries}` (the other key absent or null), each with an optional `webhook_url` and
+/// nothing else; every description not blank and at most 2000 characters.
+fn create_job_schema() -> utoipa::openapi::schema::Schema {
+    use utoipa::openapi::schema::{
+        AdditionalProperties, ArrayBuilder, ObjectBuilder, OneOfBuilder, Schema, Type,
+    };
+    let description = |text: &str| {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .min_length(Some(1))
+            .max_length(Some(MAX_QUERY_CHARS))
+            .pattern(Some(NOT_BLANK))
+            .description(Some(text))
+    };
+    let variant = |title: &str, key: &str, value: Schema, other: &str| {
+        ObjectBuilder::new()
+            .title(Some(title))
+            .property(
+                "scene_id",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .description(Some("The scene to search")),
+            )
+            .required("scene_id")
+            .property(key, value)
+            .required(key)
+            .property(
+                other,
+                ObjectBuilder::new()
+                    .schema_type(Type::Null)
+                    .description(Some("Absent or null")),
+            )
+            .property(
+                "webhook_url",
+                ObjectBuilder::new()
+                    .schema_type(utoipa::openapi::schema::SchemaType::from_iter([
+                        Type::String,
+                        Type::Null,
+                    ]))
+                    .description(Some(
+                        "http(s) URL POSTed the job (signed per Standard Webhooks) when it ends; needs an API key.",
+                    )),
+            )
+            .additional_properties(Some(AdditionalProperties::FreeForm(false)))
+            .build()
+    };
+    let one = variant(
+        "One job",
+        "query",
+        description(
+            "The description of the object, e.g. \"the black chair next to the window\" (not blank, at most 2000 characters).",
+        )
+        .build()
+        .into(),
+        "queries",
+    );
+    let batch = variant(
+        "One job per query",
+        "queries",
+        ArrayBuilder::new()
+            .items(description(
+                "One description (not blank, at most 2000 characters).",
+            ))
+            .min_items(Some(1))
+            .max_items(Some(MAX_BATCH))
+            .description(Some(
+                "Several descriptions at once (1 to 100); one job each, in this order.",
+            ))
+            .build()
+            .into(),
+        "query",
+    );
+    OneOfBuilder::new()
+        .item(one)
+        .item(batch)
+        .description(Some(
+            "`query` for one job, or `queries` for one job per query (answered as `{\"jobs\": [...]}`).",
+        ))
+        .build()
+        .into()
 }
 
 /// Webhook delivery of a job.
@@ -157,7 +248,7 @@ fn check_query(q: &str) -> Result<String, ApiError> {
 /// scene is still indexing). With `Idempotency-Key`, a retry with the same body replays
 /// the first answer and creates nothing.
 #[utoipa::path(post, path = "/v1/jobs", tag = "jobs", request_body = CreateJob,
-    params(("Idempotency-Key" = Option<String>, Header, description = "Makes retries safe: the same key and body within 24 h replay the first answer")),
+    params(("Idempotency-Key" = Option<String>, Header, nullable = false, max_length = 255, pattern = "^[ -~]*[!-~][ -~]*$", description = "Makes retries safe: the same key and body within 24 h replay the first answer (1 to 255 printable ASCII characters, not all spaces)")),
     responses((status = 202, body = Created, description = "A Job for `query`, a JobBatch for `queries`", headers(("Location" = String, description = "The job (single query only)"))),
               (status = 400, body = super::Problem, content_type = "application/problem+json"),
               (status = 401, body = super::Problem, content_type = "application/problem+json"),
@@ -475,9 +566,13 @@ pub async fn cancel(
     Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response())
 }
 
-/// An image the pipeline produced (stitched grids, annotated frames).
-#[utoipa::path(get, path = "/v1/jobs/{id}/artifacts/{name}", tag = "jobs", params(("id" = String, Path), ("name" = String, Path)),
-    responses((status = 200, content_type = "image/jpeg", body = Vec<u8>), (status = 404, body = super::Problem, content_type = "application/problem+json")))]
+/// A file the pipeline produced (stitched grids and annotated frames as JPEG, masks as PNG,
+/// records as JSON; the type follows the name's extension, JPEG for any other).
+#[utoipa::path(get, path = "/v1/jobs/{id}/artifacts/{name}", tag = "jobs",
+    params(("id" = String, Path),
+           ("name" = String, Path, pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]*$", description = "Artifact name, as the trace gives it")),
+    responses((status = 200, content((Vec<u8> = "image/jpeg"), (Vec<u8> = "image/png"), (Object = "application/json"))),
+              (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn artifact(
     State(state): State<AppState>,
     Extension(caller): Extension<Caller>,

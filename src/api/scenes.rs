@@ -37,7 +37,7 @@ pub struct SceneList {
         (status = 429, body = super::Problem, content_type = "application/problem+json", headers(("Retry-After" = u64, description = "Seconds"))),
         (status = 503, body = super::Problem, content_type = "application/problem+json", description = "too_many_uploads (max_concurrent_uploads) or indexing_busy (max_queued_indexing)", headers(("Retry-After" = u64, description = "Seconds"))),
         (status = 507, body = super::Problem, content_type = "application/problem+json", description = "insufficient_storage: the upload would cut into min_free_disk_mb")),
-    params(("Idempotency-Key" = Option<String>, Header, description = "Makes retries safe: the same key and body within 24 h replay the first answer")),
+    params(("Idempotency-Key" = Option<String>, Header, nullable = false, max_length = 255, pattern = "^[ -~]*[!-~][ -~]*$", description = "Makes retries safe: the same key and body within 24 h replay the first answer (1 to 255 printable ASCII characters, not all spaces)")),
     security((), ("bearer" = [])))]
 pub async fn upload(
     State(state): State<AppState>,

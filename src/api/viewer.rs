@@ -120,7 +120,7 @@ pub async fn scene_page(
 
 /// The viewer's scripts, style sheet and vendored libraries (with their licences).
 #[utoipa::path(get, path = "/v1/viewer/{file}", tag = "viewer", params(("file" = String, Path)),
-    responses((status = 200, content_type = "text/javascript", body = String),
+    responses((status = 200, content((String = "text/javascript"), (String = "text/css"), (String = "text/plain"))),
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn asset(Path(file): Path<String>) -> Result<Response, ApiError> {
     let (name, ct, bytes) = ASSETS.iter().find(|(n, _, _)| *n == file).ok_or_else(|| {
