@@ -9,6 +9,7 @@ pub mod exports;
 pub mod frames;
 pub mod health;
 pub mod idempotency;
+mod job_schema;
 pub mod jobs;
 pub mod openapi;
 pub mod rejection;
