@@ -164,6 +164,19 @@ mkdir -p "$(dirname "$REPORT")"
         echo "- err $err, $seg: $(jq -r '.scanrefer.overall_interval | if . == null then "–" else "Acc@0.25 \(.acc_025.lo * 1000 | round / 10)–\(.acc_025.hi * 1000 | round / 10) %, Acc@0.5 \(.acc_05.lo * 1000 | round / 10)–\(.acc_05.hi * 1000 | round / 10) % (\(.objects) objects)" end' "$s")"
     done
     echo
+    echo "## Where the first configuration loses (per target class)"
+    echo
+    s=$BENCH_DIR/run-err${CONFIGS[0]// /-}/report/summary.json
+    if [[ $(jq '.by_class // [] | length' "$s") -gt 0 ]]; then
+        echo "The 12 classes that lose the most queries (\`by_class\` in \`summary.json\` has them all):"
+        echo
+        echo "| class | n | Acc@0.25 | Acc@0.5 | mean IoU |"
+        echo "|---|---|---|---|---|"
+        jq -r '.by_class[:12][] | "| \(.label | gsub("\\|"; "\\|")) | \(.n) | \(.acc_025 * 1000 | round / 10) % | \(.acc_05 * 1000 | round / 10) % | \(.mean_iou * 100 | round / 100) |"' "$s"
+    else
+        echo "Not in this run's summary (written by an older \`grounder eval\`)."
+    fi
+    echo
     echo "## Per-stage success rates"
     echo
     echo "| stage | $(for c in "${CONFIGS[@]}"; do read -r e g <<<"$c"; printf 'err %s, %s | ' "$e" "$g"; done)"
