@@ -85,6 +85,13 @@ pub struct SupportParams {
     pub voxel: f64,
     /// Occupied voxels a layer needs.
     pub min_points: usize,
+    /// A layer must hold at least this many times the points of one of the two slabs of
+    /// its thickness beside it (just before it, toward the object, or just beyond it). A
+    /// surface perpendicular to the search axis packs its points at one coordinate, with
+    /// open space on at least one side; surfaces running along the axis (a sofa's seat and
+    /// back beside a pillow) spread theirs evenly over every slab, and are no layer.
+    /// 0 disables.
+    pub layer_peak: f64,
     /// The 2D context region is the detection box grown by this share of its size per side.
     pub context_grow: f64,
     /// Pixels (at 1296 px frame width, scaled with the frame) around the raw mask that are
@@ -183,6 +190,7 @@ impl Default for SupportParams {
             min_coverage: 0.15,
             voxel: 0.02,
             min_points: 12,
+            layer_peak: 2.0,
             context_grow: 0.5,
             mask_clearance: 9,
             hanging: [
@@ -328,16 +336,19 @@ pub(crate) fn find_layer(
             && others.iter().any(|&o| q[o] < b.min[o] || q[o] > b.max[o])
     };
     let min_gap = -p.max_inside.max(0.5 * p.layer);
+    // A layer's thickness before the search range and two beyond it too: the slabs beside
+    // each window ([`SupportParams::layer_peak`]); only the range itself is searched.
     let mut cands: Vec<(f64, &Point3<f64>)> = ctx
         .iter()
         .filter(|q| in_ring(q))
         .map(|q| (sign * (q[axis] - face), q))
-        .filter(|(gap, _)| *gap >= min_gap && *gap <= max_gap)
+        .filter(|(gap, _)| *gap >= min_gap - p.layer && *gap <= max_gap + 2.0 * p.layer)
         .collect();
-    if cands.len() < p.min_points {
+    cands.sort_by(|a, c| a.0.total_cmp(&c.0));
+    let in_range = |c: &(f64, &Point3<f64>)| c.0 >= min_gap && c.0 <= max_gap;
+    if cands.iter().filter(|c| in_range(c)).count() < p.min_points {
         return None;
     }
-    cands.sort_by(|a, c| a.0.total_cmp(&c.0));
     let step = 0.25 * p.layer;
     let mut start = min_gap;
     let mut lo = 0usize;
@@ -345,8 +356,12 @@ pub(crate) fn find_layer(
         while lo < cands.len() && cands[lo].0 < start {
             lo += 1;
         }
-        let hi = lo + cands[lo..].partition_point(|c| c.0 < start + p.layer);
-        if hi - lo >= p.min_points {
+        let hi = lo + cands[lo..].partition_point(|c| c.0 < start + p.layer.min(max_gap - start));
+        let before = lo - cands[..lo].partition_point(|c| c.0 < start - p.layer);
+        let after = cands[hi..].partition_point(|c| c.0 < start + 2.0 * p.layer);
+        let peak =
+            p.layer_peak <= 0.0 || (hi - lo) as f64 >= p.layer_peak * before.min(after) as f64;
+        if hi - lo >= p.min_points && peak {
             let layer = &cands[lo..hi];
             if let Some((coord, n)) = accept_layer(b, layer, (axis, others), margin, p) {
                 // The first window to qualify holds the near fringe of a noisy surface:
@@ -355,6 +370,7 @@ pub(crate) fn find_layer(
                 for _ in 0..2 {
                     let mut v: Vec<f64> = cands
                         .iter()
+                        .filter(|c| in_range(c))
                         .map(|(_, q)| q[axis])
                         .filter(|x| (x - c).abs() <= p.layer)
                         .collect();

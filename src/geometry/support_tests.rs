@@ -486,3 +486,29 @@ fn chair_seats_pushed_under_a_table_hold_it_up_unless_it_stands_on_the_floor() {
     assert!(p.stands("dining table") && p.stands("chairs") && p.stands("Sofa"));
     assert!(!p.stands("table lamp") && !p.stands("cup") && !p.stands("picture"));
 }
+
+#[test]
+fn surfaces_running_along_the_axis_are_no_layer_for_a_pillows_sides() {
+    // A pillow's measured front half (0.39 m wide) on a sofa's seat (z = 0.41) against
+    // its back (y = 5.25), each measured 4 cm thick (depth noise); seat and back run the
+    // sofa's whole width along x.
+    let b = Aabb::new([1.66, 5.07, 0.46], [2.05, 5.21, 0.74]);
+    let mut ctx = Vec::new();
+    for d in [-0.02, 0.0, 0.02] {
+        ctx.extend(plane(2, 0.41 + d, (0, 0.9, 2.6), (1, 4.6, 5.25), 0.02));
+        ctx.extend(plane(1, 5.25 + d, (0, 0.9, 2.6), (2, 0.41, 0.9), 0.02));
+    }
+    let (e, moved) = extend_to_support(&b, b.center(), &ctx, &[], true, &gp());
+    // Down onto the seat and back onto the sofa's back: real layers.
+    assert!(
+        (e.min[2] - 0.41).abs() < 0.03 && (e.max[1] - 5.25).abs() < 0.03,
+        "{e:?}"
+    );
+    // The sides stay: every slab across x holds the same share of seat and back.
+    assert_eq!((e.min[0], e.max[0]), (1.66, 2.05), "{moved:?}");
+    // Without the peak test, a slab inside the box passes and pulls a side in.
+    let mut off = gp();
+    off.support.layer_peak = 0.0;
+    let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], true, &off);
+    assert!(e.min[0] > 1.67 || e.max[0] < 2.04, "{e:?}");
+}
