@@ -73,9 +73,9 @@ async fn the_room_estimated_at_indexing_serves_every_job() {
     assert_eq!(jobs[1].2, 1, "{jobs:?}");
 }
 
-/// Each class not flat against a wall seen alone in a frame: its job's room-wall cuts
-/// (the segmentation step's `wall_cuts` on the room's own axes, "u" or "v") and its box.
-async fn cuts_by_class(f: &Fixture) -> Vec<(String, Vec<Value>, Value)> {
+/// Each class not flat against a wall seen alone in a frame, with its finished job (the
+/// VLM picks that frame).
+async fn jobs_by_class(f: &Fixture) -> Vec<(String, Value)> {
     let support = GeometryParams::default().support;
     let mut labels: Vec<String> = f.dets.values().flatten().map(|d| d.label.clone()).collect();
     labels.sort();
@@ -89,6 +89,16 @@ async fn cuts_by_class(f: &Fixture) -> Vec<(String, Vec<Value>, Value)> {
             .script_push(vec![analysis(&class), pick_image(format!("{frame:05}"))]);
         let job = f.run_job(&format!("the {class}")).await;
         assert_eq!(job["status"], "succeeded", "{job:#}");
+        out.push((class, job));
+    }
+    out
+}
+
+/// Each class not flat against a wall seen alone in a frame: its job's room-wall cuts
+/// (the segmentation step's `wall_cuts` on the room's own axes, "u" or "v") and its box.
+async fn cuts_by_class(f: &Fixture) -> Vec<(String, Vec<Value>, Value)> {
+    let mut out = Vec::new();
+    for (class, job) in jobs_by_class(f).await {
         let seg = steps(&job, "segmentation");
         let cuts: Vec<Value> = seg[0]["outputs"]["wall_cuts"]
             .as_array()
@@ -165,18 +175,8 @@ async fn points_on_a_wall_of_the_room_are_cut_from_an_object_that_is_not_flat() 
 async fn an_object_of_a_class_that_stands_on_the_floor_gets_its_bottom_on_the_room_floor() {
     let f = Fixture::start(vec![], 10_000).await;
     let support = GeometryParams::default().support;
-    let mut labels: Vec<String> = f.dets.values().flatten().map(|d| d.label.clone()).collect();
-    labels.sort();
-    labels.dedup();
     let (mut standing, mut other) = (0, 0);
-    for class in labels.into_iter().filter(|l| !support.is_flat(l)) {
-        let Some(&frame) = f.frames_with(&class, 1).first() else {
-            continue;
-        };
-        f.vlm
-            .script_push(vec![analysis(&class), pick_image(format!("{frame:05}"))]);
-        let job = f.run_job(&format!("the {class}")).await;
-        assert_eq!(job["status"], "succeeded", "{job:#}");
+    for (class, job) in jobs_by_class(&f).await {
         let proj = &steps(&job, "projection")[0]["outputs"];
         let stood = &proj["floor_standing"];
         let fused_bottom = proj["fused_box"]["min"][2].as_f64().expect("fused box");
