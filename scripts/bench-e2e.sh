@@ -79,6 +79,10 @@ trap cleanup EXIT
 start_server() {
     local name=$1 dir=$2
     shift 2
+    # Created here: the background process opens them only once it runs, and reading
+    # before that would end the script (set -e).
+    : >"$dir/$name.out"
+    : >"$dir/$name.err"
     "$BIN" "$@" >"$dir/$name.out" 2>"$dir/$name.err" &
     PIDS+=($!)
     for _ in $(seq 1 300); do
