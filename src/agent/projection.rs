@@ -426,7 +426,7 @@ pub async fn run(
             let bulk = median_point(anchor_kept).unwrap_or_default();
             let support = fusion.aabb.map(|b| {
                 // A table, a chair, a bed: on the floor, whatever lies just below.
-                let (b, stood) = match floor.filter(|_| standing && params.support.enabled) {
+                let (b, stood) = match floor.filter(|_| standing) {
                     Some(f) => stand_on_floor(&b, f, params.support.max_gap_column),
                     None => (b, None),
                 };

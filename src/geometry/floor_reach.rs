@@ -109,7 +109,7 @@ pub struct FloorStand {
 /// below the floor, or too far above it).
 pub fn stand_on_floor(b: &Aabb, floor: f64, max_gap: f64) -> (Aabb, Option<FloorStand>) {
     let gap = b.min[2] - floor;
-    if gap <= 0.0 || gap > max_gap || b.max[2] <= floor {
+    if gap <= 0.0 || gap > max_gap {
         return (*b, None);
     }
     let mut out = *b;
