@@ -18,7 +18,8 @@
 # none; an Idempotency-Key reused with another body is refused (the coverage phase sends
 # one key with many bodies, and ignores the configured ids); `fx`, `fy`, `cx` and `cy` come
 # together; a mask or the object's points exist only once a pipeline made them (the test
-# pipeline makes neither); a finished job cannot be canceled.
+# pipeline makes one mask, of its first usable view, and the points); a finished job
+# cannot be canceled.
 # The upload operations' binary bodies make hypothesis filter many examples; its
 # filter_too_much health check is suppressed so that they are tested anyway.
 # One worker (`-w 1`): with two, CPython 3.11's `ast.parse` (which hypothesis calls while

@@ -471,11 +471,11 @@ pub async fn cancel(
 }
 
 /// A file the pipeline produced (stitched grids and annotated frames as JPEG, masks as PNG,
-/// records as JSON; the type follows the name's extension, JPEG for any other).
+/// records as JSON; the type follows the name's extension, see [`artifact_content_type`]).
 #[utoipa::path(get, path = "/v1/jobs/{id}/artifacts/{name}", tag = "jobs",
     params(("id" = String, Path),
            ("name" = String, Path, pattern = "^[A-Za-z0-9_-][A-Za-z0-9._-]*$", description = "Artifact name, as the trace gives it")),
-    responses((status = 200, content((Vec<u8> = "image/jpeg"), (Vec<u8> = "image/png"), (Object = "application/json"))),
+    responses((status = 200, content((Vec<u8> = "image/jpeg"), (Vec<u8> = "image/png"), (Object = "application/json"), (String = "text/plain"), (Vec<u8> = "application/octet-stream"))),
               (status = 404, body = super::Problem, content_type = "application/problem+json")))]
 pub async fn artifact(
     State(state): State<AppState>,
@@ -512,13 +512,7 @@ pub async fn artifact(
         .await
         .map_err(|e| ApiError::internal(e.to_string()))?
         .ok_or_else(missing)?;
-    let ct = if name.ends_with(".png") {
-        "image/png"
-    } else if name.ends_with(".json") {
-        "application/json"
-    } else {
-        "image/jpeg"
-    };
+    let ct = artifact_content_type(&name);
     // Browsers must not guess another type from an artifact's bytes.
     Ok((
         [
@@ -527,4 +521,42 @@ pub async fn artifact(
         ],
         bytes,
     ))
+}
+
+/// The type an artifact is served with, from its name's extension: JPEG, PNG, JSON and
+/// plain text by name; anything else as bytes of no stated kind, never as an image.
+pub fn artifact_content_type(name: &str) -> &'static str {
+    let ext = name
+        .rsplit_once('.')
+        .map(|(_, e)| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "jpg" | "jpeg" => "image/jpeg",
+        "png" => "image/png",
+        "json" => "application/json",
+        "txt" => "text/plain; charset=utf-8",
+        _ => "application/octet-stream",
+    }
+}
+
+#[cfg(test)]
+mod artifact_type_tests {
+    use super::artifact_content_type;
+
+    #[test]
+    fn artifacts_get_their_type_from_the_extension_and_unknown_ones_no_image_type() {
+        assert_eq!(artifact_content_type("grid_0.jpg"), "image/jpeg");
+        assert_eq!(artifact_content_type("marks.JPEG"), "image/jpeg");
+        assert_eq!(artifact_content_type("mask_3.png"), "image/png");
+        assert_eq!(artifact_content_type("trace.json"), "application/json");
+        assert_eq!(
+            artifact_content_type("test.txt"),
+            "text/plain; charset=utf-8"
+        );
+        assert_eq!(
+            artifact_content_type("object.ply"),
+            "application/octet-stream"
+        );
+        assert_eq!(artifact_content_type("noext"), "application/octet-stream");
+    }
 }

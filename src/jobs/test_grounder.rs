@@ -1,14 +1,17 @@
 //! A pipeline for tests of the service itself (`pipeline = "test:delay_ms=N"`): it waits,
 //! writes a trace and answers the box of the scene's usable camera centres. It exercises
 //! the queue, cancellation, traces and restarts without any model. A query containing
-//! `[fail]` fails, one containing `[panic]` panics (tests of the workers' isolation).
+//! `[fail]` fails, one containing `[panic]` panics (tests of the workers' isolation). A job
+//! that succeeds also leaves what the real pipeline exports (a mask of its first usable
+//! view and the points of its box), so the export routes have something to serve.
 
 use futures::future::BoxFuture;
 use serde_json::json;
 use std::time::Duration;
 
-use super::{Grounder, GroundingOutput, JobContext, JobFailure};
+use super::{mask_artifact, Grounder, GroundingOutput, JobContext, JobFailure, OBJECT_PLY};
 use crate::geometry::camera::transform_point;
+use crate::geometry::export::{encode_ply, ColoredPoint};
 use crate::geometry::Aabb;
 
 pub struct TestGrounder {
@@ -71,8 +74,19 @@ impl Grounder for TestGrounder {
             let bbox = Aabb::from_points(&centres).ok_or_else(|| {
                 JobFailure::new("no_usable_frames", "the scene has no usable frame")
             })?;
+            let first = ctx.scene.usable_frames().next().map(|f| f.image_id());
+            if let Some(id) = &first {
+                ctx.trace.artifact(&mask_artifact(id), tiny_mask()).await?;
+            }
+            let points: Vec<ColoredPoint> = centres.iter().map(|p| (*p, [200, 80, 40])).collect();
             ctx.trace
-                .step("done", json!({"cameras": centres.len()}))
+                .artifact(
+                    OBJECT_PLY,
+                    encode_ply(&points, &["test pipeline: camera centres".into()]),
+                )
+                .await?;
+            ctx.trace
+                .step("done", json!({"cameras": centres.len(), "mask_of": first}))
                 .await;
             Ok(GroundingOutput {
                 bbox,
@@ -80,4 +94,19 @@ impl Grounder for TestGrounder {
             })
         })
     }
+}
+
+/// An 8x6 mask (255 inside a 4x2 block) as PNG bytes.
+fn tiny_mask() -> Vec<u8> {
+    let img = image::GrayImage::from_fn(8, 6, |x, y| {
+        image::Luma([if (2..6).contains(&x) && (2..4).contains(&y) {
+            255
+        } else {
+            0
+        }])
+    });
+    let mut out = std::io::Cursor::new(Vec::new());
+    // Encoding a small in-memory image into a vector cannot fail.
+    let _ = img.write_to(&mut out, image::ImageFormat::Png);
+    out.into_inner()
 }

@@ -94,7 +94,8 @@ async fn pages_assets_and_exports_are_served_or_refused_clearly() {
         assert_eq!(s, 400, "voxel={bad}: {p}");
     }
 
-    // A finished job of the test pipeline: box corners; it made no points or masks.
+    // A finished job of the test pipeline: box corners, the points of its box (camera
+    // centres) and the mask of its first usable view, which the trace names.
     let r = app.create_job(&sid, "the chair").await;
     let job: serde_json::Value = r.json().await.unwrap();
     let jid = job["id"].as_str().unwrap().to_string();
@@ -105,10 +106,28 @@ async fn pages_assets_and_exports_are_served_or_refused_clearly() {
     assert_eq!(corners.len(), 8);
     assert_eq!(corners[0], done["result"]["box"]["min"]);
     assert_eq!(corners[7], done["result"]["box"]["max"]);
-    let (s, p) = app.get_json(&format!("/v1/jobs/{jid}/object.ply")).await;
-    assert_eq!((s, p["code"].as_str()), (404, Some("export_not_found")));
+    let r = app.get(&format!("/v1/jobs/{jid}/object.ply")).await;
+    assert_eq!(r.status(), 200);
+    let ply = r.bytes().await.unwrap();
+    assert!(ply.starts_with(b"ply\nformat binary_little_endian 1.0\n"));
+    let done_step = done["trace"]
+        .as_array()
+        .and_then(|s| s.iter().find(|s| s["step"] == "done"))
+        .unwrap_or_else(|| panic!("no done step: {done}"));
+    let cameras = done_step["cameras"].as_u64().expect("cameras");
+    let text = String::from_utf8_lossy(&ply);
+    assert!(
+        text.contains(&format!("element vertex {cameras}\n")),
+        "{text}"
+    );
+    let mask_of = done_step["mask_of"].as_str().expect("mask_of");
+    let r = app
+        .get(&format!("/v1/jobs/{jid}/masks/{mask_of}.png"))
+        .await;
+    assert_eq!(r.status(), 200);
+    assert!(r.bytes().await.unwrap().starts_with(b"\x89PNG"));
     let (s, p) = app
-        .get_json(&format!("/v1/jobs/{jid}/masks/00001.png"))
+        .get_json(&format!("/v1/jobs/{jid}/masks/99999.png"))
         .await;
     assert_eq!((s, p["code"].as_str()), (404, Some("export_not_found")));
     let (s, _) = app
