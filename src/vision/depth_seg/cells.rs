@@ -19,6 +19,23 @@ impl DepthSegmenter {
         ((r[2] - r[0]) * (r[3] - r[1])) as f64 / ((bx1 - bx0) * (by1 - by0)).max(1) as f64
     }
 
+    /// The region runs on past the box's margin: on some side where the grid reaches past
+    /// the box (not cut by the image's edge), its cells on the grid's outermost line there
+    /// cover at least a quarter of the box's length along that side. A tight box ends
+    /// within a few pixels of its object, so a surface that continues a whole margin beyond
+    /// it along much of an edge is what lies behind or beside the object (the wall behind a
+    /// floor lamp's pole), or the object run together with it.
+    pub(super) fn runs_past_margin(g: &Grid, region: &[bool]) -> bool {
+        let [bx0, by0, bx1, by1] = g.b;
+        let along = |len: usize| (len / 4).max(1);
+        let column = |x: usize| (0..g.h).filter(|&y| region[y * g.w + x]).count();
+        let row = |y: usize| (0..g.w).filter(|&x| region[y * g.w + x]).count();
+        (bx0 > 0 && column(0) >= along(by1 - by0))
+            || (bx1 < g.w && column(g.w - 1) >= along(by1 - by0))
+            || (by0 > 0 && row(0) >= along(bx1 - bx0))
+            || (by1 < g.h && row(g.h - 1) >= along(bx1 - bx0))
+    }
+
     /// `region` with the parts of the object that the growth across the larger step
     /// (`grouped`) reached: each connected piece it adds is kept when nine in ten of its
     /// cells lie inside the box and none on the frame's edge (`size`: the image's). A tight

@@ -14,6 +14,11 @@
 //! surfaces that stay mostly inside the box, the one whose extent fills the box best while
 //! running least past its edges is the object: a tight box ends where the object ends, an
 //! occluder in front covers only part of it, and the background behind runs on past it.
+//! When the best of them runs on past the box's whole margin (a background), the weaker
+//! depth modes are tried too: a thin object seen along its length (a floor lamp's pole
+//! from above) spreads over many depth bins and never makes a strong mode, and a surface
+//! of one of them that stays within the margin is taken when it scores at least half as
+//! well (the factor for a surface mostly outside the box).
 //! When no surface explains the box so, each is grown again across the larger step between
 //! the parts of one object (a lamp's shade in front of its pole), keeping only the pieces
 //! that adds inside the box.
@@ -75,6 +80,9 @@ pub struct DepthSegmenter {
     pub group_below: f64,
     pub group_step: f64,
     pub group_per_m: f64,
+    /// When the best surface runs on past the box's margin, also try the modes of at least
+    /// this fraction of the largest (0 turns it off; spec `depth:weak=off`).
+    pub weak_mode: f64,
 }
 
 impl Default for DepthSegmenter {
@@ -95,6 +103,7 @@ impl Default for DepthSegmenter {
             group_below: 0.5,
             group_step: 0.25,
             group_per_m: 0.05,
+            weak_mode: 0.1,
         }
     }
 }
@@ -102,7 +111,7 @@ impl Default for DepthSegmenter {
 impl DepthSegmenter {
     /// Options after `depth:`, comma-separated: `edges=on|off` ([`Self::block_edges`]),
     /// `colour=on|off` ([`Self::colour_alternative`]), `groups=on|off`
-    /// ([`Self::group_alternative`]).
+    /// ([`Self::group_alternative`]), `weak=on|off` ([`Self::weak_mode`]).
     pub fn from_spec(spec: &str) -> Result<Self> {
         let mut d = Self::default();
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
@@ -113,9 +122,11 @@ impl DepthSegmenter {
                 Some(("colour", "off")) => d.colour_alternative = false,
                 Some(("groups", "on")) => d.group_alternative = true,
                 Some(("groups", "off")) => d.group_alternative = false,
+                Some(("weak", "on")) => d.weak_mode = Self::default().weak_mode,
+                Some(("weak", "off")) => d.weak_mode = 0.0,
                 _ => bail!(
                     "unknown depth segmenter option `{part}` \
-                     (expected edges=on|off, colour=on|off or groups=on|off)"
+                     (expected edges=on|off, colour=on|off, groups=on|off or weak=on|off)"
                 ),
             }
         }
@@ -351,8 +362,9 @@ impl DepthSegmenter {
         g.edge = edge;
     }
 
-    /// Depths of the strong, centre-weighted histogram modes inside the box, near to far.
-    fn modes(&self, g: &Grid) -> Vec<f64> {
+    /// Every mode of the centre-weighted depth histogram, near to far: its depth and its
+    /// mass as a share of the largest.
+    fn modes(&self, g: &Grid) -> Vec<(f64, f64)> {
         let valid: Vec<f64> = (0..g.z.len())
             .filter(|&i| g.inb[i] && g.z[i] > 0.0)
             .map(|i| g.z[i])
@@ -393,8 +405,8 @@ impl DepthSegmenter {
         let is_mode =
             |i: usize| (i == 0 || sm[i] >= sm[i - 1]) && (i + 1 == nb || sm[i] > sm[i + 1]);
         (0..nb)
-            .filter(|&i| is_mode(i) && sm[i] >= self.strong_mode * peak)
-            .map(|i| zmin + (i as f64 + 0.5) * self.bin)
+            .filter(|&i| is_mode(i) && peak > 0.0)
+            .map(|i| (zmin + (i as f64 + 0.5) * self.bin, sm[i] / peak))
             .collect()
     }
 }
@@ -423,7 +435,12 @@ impl Segmenter for DepthSegmenter {
         let Some(mut g) = self.grid(input, bbox) else {
             return Ok(Mask::new(cw, ch));
         };
-        let modes = self.modes(&g);
+        let all_modes = self.modes(&g);
+        let modes: Vec<f64> = all_modes
+            .iter()
+            .filter(|(_, share)| *share >= self.strong_mode)
+            .map(|&(z, _)| z)
+            .collect();
         if modes.is_empty() {
             // no depth at all in the box: the box is the best guess
             return Ok(Mask::from_box(cw, ch, bbox));
@@ -474,6 +491,28 @@ impl Segmenter for DepthSegmenter {
                 }
             }
             plain.push((m, region));
+        }
+        // A background won: a thin object's weak mode may hold a surface within the margin.
+        let background = best
+            .as_ref()
+            .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
+        if self.weak_mode > 0.0 && background {
+            let bar = best.as_ref().map_or(0.0, |(s, _)| s * 0.5);
+            let weak = all_modes
+                .iter()
+                .filter(|(_, share)| (self.weak_mode..self.strong_mode).contains(share));
+            let mut found: Option<(f64, Vec<bool>)> = None;
+            for &(m, _) in weak.take(4) {
+                let (region, outside) = self.surface(&g, m, cell_px);
+                let sc = score(&region, outside);
+                let better = found.as_ref().map_or(bar, |(s, _)| *s);
+                if sc > better + 1e-9 && !Self::runs_past_margin(&g, &region) {
+                    found = Some((sc, region));
+                }
+            }
+            if found.is_some() {
+                best = found;
+            }
         }
         // Parts are joined only when no one surface explains the box.
         let unexplained = best.as_ref().is_none_or(|(s, _)| *s < self.group_below);
