@@ -397,18 +397,17 @@ fn a_window_split_by_its_mullion_keeps_both_panes() {
     assert!(left < 0.05 && right > 0.8, "panes: {left:.2} {right:.2}");
 }
 
-#[test]
-fn a_floor_lamps_shade_pole_and_foot_are_one_mask_before_the_plant_behind() {
-    // A floor lamp 2.2 m away: a 40 cm shade 1.3-1.6 m up, which stands 20 cm in front of
-    // the 3 cm pole that holds it (a step no surface growth takes), and a round foot. A
-    // plant behind it, 1.2 m further, fills the middle of the lamp's box; a wall beyond.
-    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
-    let foot = ([2.08, -0.12, 0.0], [2.32, 0.12, 0.03], [200, 200, 200]);
-    let pole = ([2.185, -0.015, 0.03], [2.215, 0.015, 1.3], [190, 190, 190]);
-    let shade = ([2.0, -0.2, 1.3], [2.4, 0.2, 1.6], [30, 30, 30]);
-    let plant = ([3.4, -0.3, 0.2], [3.8, 0.3, 1.2], [40, 140, 50]);
-    let wall = ([5.0, -3.0, 0.0], [5.1, 3.0, 3.0], [170, 170, 170]);
-    let parts = [floor, foot, pole, shade, plant, wall];
+/// A part of a rendered scene: its box (min, max) and colour.
+type Part = ([f64; 3], [f64; 3], [u8; 3]);
+
+/// A 160 x 200 view (focal length 160 pixels) from `eye` towards `at` of `parts`: colour,
+/// depth, the camera, and the mask of parts 1..=`last` (a floor lamp's).
+fn lamp_view(
+    parts: &[Part],
+    eye: Point3<f64>,
+    at: Point3<f64>,
+    last: usize,
+) -> (RgbImage, DepthMap, FrameCamera, Mask) {
     let k = Intrinsics {
         fx: 160.0,
         fy: 160.0,
@@ -421,21 +420,34 @@ fn a_floor_lamps_shade_pole_and_foot_are_one_mask_before_the_plant_behind() {
         color: k,
         depth: None,
         depth_size: (160, 200),
-        pose: look_at_pose(
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(2.2, 0.0, 0.8),
-            Vector3::z(),
-        ),
+        pose: look_at_pose(eye, at, Vector3::z()),
         align: Matrix4::identity(),
     };
-    let (color, depth, _) = render_coloured(&cam, &parts, 0);
+    let (color, depth, _) = render_coloured(&cam, parts, 0);
     let mut lamp = Mask::new(160, 200);
-    for part in 1..=3 {
-        let (_, _, m) = render_coloured(&cam, &parts, part);
+    for part in 1..=last {
+        let (_, _, m) = render_coloured(&cam, parts, part);
         for (o, &v) in lamp.data.iter_mut().zip(&m.data) {
             *o |= v;
         }
     }
+    (color, depth, cam, lamp)
+}
+
+#[test]
+fn a_floor_lamps_shade_pole_and_foot_are_one_mask_before_the_plant_behind() {
+    // A floor lamp 2.2 m away: a 40 cm shade 1.3-1.6 m up, which stands 20 cm in front of
+    // the 3 cm pole that holds it (a step no surface growth takes), and a round foot. A
+    // plant behind it, 1.2 m further, fills the middle of the lamp's box; a wall beyond.
+    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
+    let foot = ([2.08, -0.12, 0.0], [2.32, 0.12, 0.03], [200, 200, 200]);
+    let pole = ([2.185, -0.015, 0.03], [2.215, 0.015, 1.3], [190, 190, 190]);
+    let shade = ([2.0, -0.2, 1.3], [2.4, 0.2, 1.6], [30, 30, 30]);
+    let plant = ([3.4, -0.3, 0.2], [3.8, 0.3, 1.2], [40, 140, 50]);
+    let wall = ([5.0, -3.0, 0.0], [5.1, 3.0, 3.0], [170, 170, 170]);
+    let parts = [floor, foot, pole, shade, plant, wall];
+    let (eye, at) = (Point3::new(0.0, 0.0, 1.0), Point3::new(2.2, 0.0, 0.8));
+    let (color, depth, cam, lamp) = lamp_view(&parts, eye, at, 3);
     let input = SegmentInput {
         color: &color,
         depth: &depth,
@@ -530,33 +542,8 @@ fn a_floor_lamp_before_a_wall_is_not_the_wall_behind_its_pole() {
     let pole = ([0.99, -0.01, 0.03], [1.01, 0.01, 1.6], [190, 190, 190]);
     let wall = ([1.6, -3.0, 0.0], [1.7, 3.0, 3.0], [170, 170, 170]);
     let parts = [floor, foot, pole, wall];
-    let k = Intrinsics {
-        fx: 160.0,
-        fy: 160.0,
-        cx: 79.5,
-        cy: 99.5,
-        width: 160,
-        height: 200,
-    };
-    let cam = FrameCamera {
-        color: k,
-        depth: None,
-        depth_size: (160, 200),
-        pose: look_at_pose(
-            Point3::new(0.3, -0.6, 1.5),
-            Point3::new(1.0, 0.0, 0.6),
-            Vector3::z(),
-        ),
-        align: Matrix4::identity(),
-    };
-    let (color, depth, _) = render_coloured(&cam, &parts, 0);
-    let mut lamp = Mask::new(160, 200);
-    for part in 1..=2 {
-        let (_, _, m) = render_coloured(&cam, &parts, part);
-        for (o, &v) in lamp.data.iter_mut().zip(&m.data) {
-            *o |= v;
-        }
-    }
+    let (eye, at) = (Point3::new(0.3, -0.6, 1.5), Point3::new(1.0, 0.0, 0.6));
+    let (color, depth, cam, lamp) = lamp_view(&parts, eye, at, 2);
     let input = SegmentInput {
         color: &color,
         depth: &depth,
