@@ -14,6 +14,13 @@ async fn artifacts_are_served_with_nosniff() {
     assert_eq!(j["status"], "succeeded", "{j}");
     let r = app.get(&format!("/v1/jobs/{id}/artifacts/test.txt")).await;
     assert_eq!(r.status().as_u16(), 200);
+    // A text artifact is not served as an image.
+    assert_eq!(
+        r.headers()
+            .get("content-type")
+            .and_then(|v| v.to_str().ok()),
+        Some("text/plain; charset=utf-8")
+    );
     assert_eq!(
         r.headers()
             .get("x-content-type-options")
