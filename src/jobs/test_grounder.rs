@@ -10,9 +10,10 @@ use serde_json::json;
 use std::time::Duration;
 
 use super::{mask_artifact, Grounder, GroundingOutput, JobContext, JobFailure, OBJECT_PLY};
+use crate::agent::exports::write_mask_png;
 use crate::geometry::camera::transform_point;
 use crate::geometry::export::{encode_ply, ColoredPoint};
-use crate::geometry::Aabb;
+use crate::geometry::{Aabb, Mask};
 
 pub struct TestGrounder {
     pub delay: Duration,
@@ -96,17 +97,11 @@ impl Grounder for TestGrounder {
     }
 }
 
-/// An 8x6 mask (255 inside a 4x2 block) as PNG bytes.
+/// An 8x6 mask (255 inside a 4x2 block) as PNG bytes, written as the real pipeline writes
+/// its masks.
 fn tiny_mask() -> Vec<u8> {
-    let img = image::GrayImage::from_fn(8, 6, |x, y| {
-        image::Luma([if (2..6).contains(&x) && (2..4).contains(&y) {
-            255
-        } else {
-            0
-        }])
-    });
-    let mut out = std::io::Cursor::new(Vec::new());
-    // Encoding a small in-memory image into a vector cannot fail.
-    let _ = img.write_to(&mut out, image::ImageFormat::Png);
-    out.into_inner()
+    let mut out = Vec::new();
+    // Writing a mask of the right size into a vector cannot fail.
+    let _ = write_mask_png(&mut out, &Mask::from_box(8, 6, [2.0, 2.0, 6.0, 4.0]));
+    out
 }

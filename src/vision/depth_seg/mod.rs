@@ -493,10 +493,11 @@ impl Segmenter for DepthSegmenter {
             plain.push((m, region));
         }
         // A background won: a thin object's weak mode may hold a surface within the margin.
-        let background = best
-            .as_ref()
-            .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
-        if self.weak_mode > 0.0 && background {
+        let background = self.weak_mode > 0.0
+            && best
+                .as_ref()
+                .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
+        if background {
             let bar = best.as_ref().map_or(0.0, |(s, _)| s * 0.5);
             let weak = all_modes
                 .iter()
