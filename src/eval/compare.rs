@@ -2,7 +2,7 @@
 //! accuracies of each, their difference with its 95 % interval (a bootstrap over target
 //! objects, paired by query: [`super::interval`]), and the objects whose queries changed.
 
-use super::interval::{bootstrap, clusters, hit, Interval, RESAMPLES};
+use super::interval::{bootstrap, cluster_key_of, clusters, hit, Interval, RESAMPLES};
 use super::metrics::QueryRecord;
 use anyhow::{Context, Result};
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -63,16 +63,14 @@ pub struct Comparison {
 /// its target object, named by the base record or else by the run's.
 pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
     let by_id: HashMap<&str, &QueryRecord> = run.iter().map(|r| (r.query_id.as_str(), r)).collect();
-    let named: Vec<(QueryRecord, &QueryRecord)> = base
+    // Each pair with its cluster, named by the base record's target or else by the run's.
+    let pairs: Vec<(&QueryRecord, &QueryRecord, String)> = base
         .iter()
         .filter_map(|b| {
             let r = *by_id.get(b.query_id.as_str())?;
-            let mut b = b.clone();
-            b.target_id = b.target_id.or(r.target_id);
-            Some((b, r))
+            Some((b, r, cluster_key_of(b, b.target_id.or(r.target_id))))
         })
         .collect();
-    let pairs: Vec<(&QueryRecord, &QueryRecord)> = named.iter().map(|(b, r)| (b, *r)).collect();
     let matched = pairs.len();
     let in_base: HashSet<&str> = base.iter().map(|r| r.query_id.as_str()).collect();
     let mut objects = 0;
@@ -82,11 +80,11 @@ pub fn compare(base: &[QueryRecord], run: &[QueryRecord]) -> Comparison {
             let d = |b: &QueryRecord, r: &QueryRecord| {
                 f64::from(u8::from(hit(r, t))) - f64::from(u8::from(hit(b, t)))
             };
-            let c = clusters(pairs.iter().map(|(b, r)| (*b, d(b, r))));
+            let c = clusters(pairs.iter().map(|(b, r, k)| (k.clone(), d(b, r))));
             objects = c.len();
             let sums: Vec<(f64, usize)> = c.iter().map(|(_, s, n)| (*s, *n)).collect();
             let share = |f: &dyn Fn(&QueryRecord, &QueryRecord) -> bool| {
-                let k = pairs.iter().filter(|(b, r)| f(b, r)).count();
+                let k = pairs.iter().filter(|(b, r, _)| f(b, r)).count();
                 k as f64 / matched.max(1) as f64
             };
             let (base, run) = (share(&|b, _| hit(b, t)), share(&|_, r| hit(r, t)));

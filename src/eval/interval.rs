@@ -36,19 +36,22 @@ pub struct AccIntervals {
 /// The cluster a record belongs to: its scene and target object, or the query alone when
 /// the record does not name its target (results written before records carried it).
 pub fn cluster_key(r: &QueryRecord) -> String {
-    match r.target_id {
+    cluster_key_of(r, r.target_id)
+}
+
+/// [`cluster_key`] with the target named elsewhere (a paired record's, when `r` lacks it).
+pub fn cluster_key_of(r: &QueryRecord, target: Option<u32>) -> String {
+    match target {
         Some(t) => format!("{}#{t}", r.scene_id),
         None => format!("query {}", r.query_id),
     }
 }
 
 /// Per cluster (in key order): the sum of `value` over its records and their count.
-pub fn clusters<'a>(
-    records: impl IntoIterator<Item = (&'a QueryRecord, f64)>,
-) -> Vec<(String, f64, usize)> {
+pub fn clusters(records: impl IntoIterator<Item = (String, f64)>) -> Vec<(String, f64, usize)> {
     let mut by: BTreeMap<String, (f64, usize)> = BTreeMap::new();
-    for (r, v) in records {
-        let e = by.entry(cluster_key(r)).or_insert((0.0, 0));
+    for (key, v) in records {
+        let e = by.entry(key).or_insert((0.0, 0));
         e.0 += v;
         e.1 += 1;
     }
@@ -92,7 +95,11 @@ pub fn hit(r: &QueryRecord, threshold: f64) -> bool {
 /// The intervals of a run's overall Acc@0.25 and Acc@0.5; `None` without records.
 pub fn acc_intervals(records: &[QueryRecord]) -> Option<AccIntervals> {
     let at = |t: f64| {
-        let c = clusters(records.iter().map(|r| (r, f64::from(u8::from(hit(r, t))))));
+        let c = clusters(
+            records
+                .iter()
+                .map(|r| (cluster_key(r), f64::from(u8::from(hit(r, t))))),
+        );
         let sums: Vec<(f64, usize)> = c.iter().map(|(_, s, n)| (*s, *n)).collect();
         (c.len(), bootstrap(&sums, RESAMPLES))
     };

@@ -34,6 +34,7 @@ pub mod projection;
 pub mod round_back;
 pub mod sightline;
 pub mod support;
+mod support_layer;
 #[cfg(test)]
 pub(crate) mod test_grid;
 #[cfg(test)]

@@ -14,7 +14,7 @@
 use nalgebra::{Point3, Vector2};
 use serde::{Deserialize, Serialize};
 
-use super::support::percentile;
+use super::support_layer::percentile;
 use super::Aabb;
 
 /// Settings of [`round_back`].

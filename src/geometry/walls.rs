@@ -9,7 +9,7 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::median;
-use super::support::find_layer;
+use super::support_layer::find_layer;
 use super::wall_colour::ColourSplit;
 use super::{Aabb, RoomLayout, SupportParams};
 
