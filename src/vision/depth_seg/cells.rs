@@ -36,6 +36,64 @@ impl DepthSegmenter {
             || (by1 < g.h && row(g.h - 1) >= along(bx1 - bx0))
     }
 
+    /// When the winning surface `won` runs on past the box's margin, the best-scoring surface
+    /// that ends within the margin and scores at least half as well (the factor given to a
+    /// surface mostly outside the box), among:
+    /// - the strong modes' surfaces already scored (`strong`) that lie behind `won` (median
+    ///   depth in the box): `won` is an occluder before the object covering much of its box
+    ///   (a table top before a chair's back), and it hides part of the object's extent;
+    /// - those that lie before `won` only when they explain the box by themselves
+    ///   ([`Self::group_below`]): nothing hides them, so the object in front of a
+    ///   background fills its box, while a nearer surface that fills only part of the box
+    ///   is an occluder of `won` (a chair pushed up to a desk that runs into the wall);
+    /// - the surfaces of the `weak` modes, wherever they lie: a thin object seen along its
+    ///   length (a floor lamp's pole from above) spreads over many depth bins and never
+    ///   makes a strong mode, and `won` is then the background behind it.
+    pub(super) fn ended_surface(
+        &self,
+        g: &Grid,
+        won: &(f64, Vec<bool>),
+        strong: &[(f64, Vec<bool>)],
+        weak: &[f64],
+        cell_px: f64,
+        score: &dyn Fn(&[bool], f64) -> f64,
+    ) -> Option<(f64, Vec<bool>)> {
+        if !Self::runs_past_margin(g, &won.1) {
+            return None;
+        }
+        let mut found: Option<(f64, Vec<bool>)> = None;
+        let mut offer = |sc: f64, region: &[bool]| {
+            let bar = found.as_ref().map_or(won.0 * 0.5, |(s, _)| *s);
+            if sc > bar + 1e-9 && !Self::runs_past_margin(g, region) {
+                found = Some((sc, region.to_vec()));
+            }
+        };
+        let front = Self::median_depth(g, &won.1);
+        for (sc, region) in strong {
+            if Self::median_depth(g, region) > front || *sc >= self.group_below {
+                offer(*sc, region);
+            }
+        }
+        for &m in weak {
+            let (region, outside) = self.surface(g, m, cell_px);
+            offer(score(&region, outside), &region);
+        }
+        found
+    }
+
+    /// Median depth of the region's cells in the box (0 without any).
+    fn median_depth(g: &Grid, region: &[bool]) -> f64 {
+        let mut z: Vec<f64> = (0..region.len())
+            .filter(|&i| region[i] && g.inb[i] && g.z[i] > 0.0)
+            .map(|i| g.z[i])
+            .collect();
+        if z.is_empty() {
+            return 0.0;
+        }
+        let k = z.len() / 2;
+        *z.select_nth_unstable_by(k, f64::total_cmp).1
+    }
+
     /// `region` with the parts of the object that the growth across the larger step
     /// (`grouped`) reached: each connected piece it adds is kept when nine in ten of its
     /// cells lie inside the box and none on the frame's edge (`size`: the image's). A tight

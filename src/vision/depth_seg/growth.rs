@@ -98,6 +98,22 @@ impl DepthSegmenter {
         region
     }
 
+    /// Whether the box's cells at mode `target` (those a growth from it would seed on) lie
+    /// mostly on surfaces already grown: a slanted table top spreads over several strong
+    /// modes that all grow into the one surface, and growing it again would crowd out a
+    /// surface farther back.
+    pub(super) fn mode_grown(g: &Grid, target: f64, grown: &[(f64, Vec<bool>)]) -> bool {
+        let tol = 0.05 + 0.03 * target;
+        let (mut at, mut held) = (0usize, 0usize);
+        for i in (0..g.z.len()).filter(|&i| g.inb[i] && g.z[i] > 0.0) {
+            if (g.z[i] - target).abs() <= tol {
+                at += 1;
+                held += usize::from(grown.iter().any(|(_, r)| r[i]));
+            }
+        }
+        at > 0 && held as f64 >= 0.8 * at as f64
+    }
+
     /// Cells of the supporting surface if the region leaked onto it.
     pub(super) fn support_cut(&self, g: &Grid, region: &[bool]) -> Option<Vec<bool>> {
         let mut hs: Vec<f64> = (0..region.len())

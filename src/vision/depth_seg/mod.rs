@@ -14,11 +14,12 @@
 //! surfaces that stay mostly inside the box, the one whose extent fills the box best while
 //! running least past its edges is the object: a tight box ends where the object ends, an
 //! occluder in front covers only part of it, and the background behind runs on past it.
-//! When the best of them runs on past the box's whole margin (a background), the weaker
-//! depth modes are tried too: a thin object seen along its length (a floor lamp's pole
-//! from above) spreads over many depth bins and never makes a strong mode, and a surface
-//! of one of them that stays within the margin is taken when it scores at least half as
-//! well (the factor for a surface mostly outside the box).
+//! When the best of them runs on past the box's whole margin (a background behind, or an
+//! occluder before: a table top over a chair's seat), a surface that ends within the
+//! margin is taken instead when it scores at least half as well (the factor for a surface
+//! mostly outside the box): a strong mode's, or one of the weaker depth modes' (a thin
+//! object seen along its length, a floor lamp's pole from above, spreads over many depth
+//! bins and never makes a strong mode).
 //! When no surface explains the box so, each is grown again across the larger step between
 //! the parts of one object (a lamp's shade in front of its pole), keeping only the pieces
 //! that adds inside the box.
@@ -83,6 +84,9 @@ pub struct DepthSegmenter {
     /// When the best surface runs on past the box's margin, also try the modes of at least
     /// this fraction of the largest (0 turns it off; spec `depth:weak=off`).
     pub weak_mode: f64,
+    /// When the best surface runs on past the box's margin, the strong modes' surfaces that
+    /// end within it compete again at half the bar (spec `depth:within=off` turns it off).
+    pub prefer_within: bool,
 }
 
 impl Default for DepthSegmenter {
@@ -104,6 +108,7 @@ impl Default for DepthSegmenter {
             group_step: 0.25,
             group_per_m: 0.05,
             weak_mode: 0.1,
+            prefer_within: true,
         }
     }
 }
@@ -111,7 +116,8 @@ impl Default for DepthSegmenter {
 impl DepthSegmenter {
     /// Options after `depth:`, comma-separated: `edges=on|off` ([`Self::block_edges`]),
     /// `colour=on|off` ([`Self::colour_alternative`]), `groups=on|off`
-    /// ([`Self::group_alternative`]), `weak=on|off` ([`Self::weak_mode`]).
+    /// ([`Self::group_alternative`]), `weak=on|off` ([`Self::weak_mode`]), `within=on|off`
+    /// ([`Self::prefer_within`]).
     pub fn from_spec(spec: &str) -> Result<Self> {
         let mut d = Self::default();
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
@@ -124,9 +130,11 @@ impl DepthSegmenter {
                 Some(("groups", "off")) => d.group_alternative = false,
                 Some(("weak", "on")) => d.weak_mode = Self::default().weak_mode,
                 Some(("weak", "off")) => d.weak_mode = 0.0,
+                Some(("within", "on")) => d.prefer_within = true,
+                Some(("within", "off")) => d.prefer_within = false,
                 _ => bail!(
-                    "unknown depth segmenter option `{part}` \
-                     (expected edges=on|off, colour=on|off, groups=on|off or weak=on|off)"
+                    "unknown depth segmenter option `{part}` (expected edges=on|off, \
+                     colour=on|off, groups=on|off, weak=on|off or within=on|off)"
                 ),
             }
         }
@@ -474,7 +482,14 @@ impl Segmenter for DepthSegmenter {
                 }
         };
         let mut plain = Vec::with_capacity(4);
-        for &m in modes.iter().take(4) {
+        let mut scored = Vec::with_capacity(8);
+        for &m in &modes {
+            if plain.len() == 4 {
+                break;
+            }
+            if self.prefer_within && Self::mode_grown(&g, m, &plain) {
+                continue;
+            }
             let (region, outside) = self.surface(&g, m, cell_px);
             let mut cands = Vec::with_capacity(2);
             if self.colour_alternative && outside > 0.0 {
@@ -487,32 +502,26 @@ impl Segmenter for DepthSegmenter {
             cands.insert(0, (score(&region, outside), region.clone()));
             for (sc, region) in cands {
                 if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
-                    best = Some((sc, region));
+                    best = Some((sc, region.clone()));
                 }
+                scored.push((sc, region));
             }
             plain.push((m, region));
         }
-        // A background won: a thin object's weak mode may hold a surface within the margin.
-        let background = self.weak_mode > 0.0
-            && best
-                .as_ref()
-                .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
-        if background {
-            let bar = best.as_ref().map_or(0.0, |(s, _)| s * 0.5);
-            let weak = all_modes
+        // A background or an occluder won: a surface that ends within the margin may be
+        // the object (a chair's back above the table before it; a thin object's weak mode).
+        let mut ended = false;
+        if let Some(won) = best.as_ref() {
+            let weak: Vec<f64> = all_modes
                 .iter()
-                .filter(|(_, share)| (self.weak_mode..self.strong_mode).contains(share));
-            let mut found: Option<(f64, Vec<bool>)> = None;
-            for &(m, _) in weak.take(4) {
-                let (region, outside) = self.surface(&g, m, cell_px);
-                let sc = score(&region, outside);
-                let better = found.as_ref().map_or(bar, |(s, _)| *s);
-                if sc > better + 1e-9 && !Self::runs_past_margin(&g, &region) {
-                    found = Some((sc, region));
-                }
-            }
-            if found.is_some() {
-                best = found;
+                .filter(|(_, share)| (self.weak_mode..self.strong_mode).contains(share))
+                .take(if self.weak_mode > 0.0 { 4 } else { 0 })
+                .map(|&(m, _)| m)
+                .collect();
+            let strong = if self.prefer_within { &scored[..] } else { &[] };
+            if let Some(found) = self.ended_surface(&g, won, strong, &weak, cell_px, &score) {
+                best = Some(found);
+                ended = true;
             }
         }
         // Parts are joined only when no one surface explains the box.
@@ -521,6 +530,11 @@ impl Segmenter for DepthSegmenter {
             for (m, region) in plain {
                 let (grouped, _) = self.surface_with(&g, m, cell_px, Colour::Off, Reach::Group);
                 if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
+                    // What was set aside for running past the margin does not come back
+                    // joined to the surface that replaced it.
+                    if ended && Self::runs_past_margin(&g, &whole) {
+                        continue;
+                    }
                     let sc = score(&whole, g.outside_share(&whole));
                     if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
                         best = Some((sc, whole));
