@@ -558,6 +558,12 @@ fn a_floor_lamp_before_a_wall_is_not_the_wall_behind_its_pole() {
     assert!(m.iou(&lamp) < 0.3, "IoU {} with weak=off", m.iou(&lamp));
 }
 
+/// The share of mask `m` that lies on `object`.
+fn share_on(object: &Mask, m: &Mask) -> f64 {
+    let both = m.data.iter().zip(&object.data).filter(|(a, b)| **a && **b);
+    both.count() as f64 / m.count().max(1) as f64
+}
+
 #[test]
 fn a_chairs_back_above_the_table_before_it_is_not_the_table_top() {
     // A chair pushed to the far side of a table, seen from across it from above: its back
@@ -582,11 +588,7 @@ fn a_chairs_back_above_the_table_before_it_is_not_the_table_top() {
         camera: &cam,
     };
     let bbox = mask_box(&chair);
-    // The share of the mask that lies on the chair.
-    let on_chair = |m: &Mask| {
-        let both = m.data.iter().zip(&chair.data).filter(|(a, b)| **a && **b);
-        both.count() as f64 / m.count().max(1) as f64
-    };
+    let on_chair = |m: &Mask| share_on(&chair, m);
     let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
     assert!(
         on_chair(&m) > 0.9 && m.iou(&chair) > 0.3,
@@ -627,10 +629,7 @@ fn a_chair_before_a_desk_against_the_wall_does_not_replace_the_desk() {
         camera: &cam,
     };
     let bbox = mask_box(&desk);
-    let on_desk = |m: &Mask| {
-        let both = m.data.iter().zip(&desk.data).filter(|(a, b)| **a && **b);
-        both.count() as f64 / m.count().max(1) as f64
-    };
+    let on_desk = |m: &Mask| share_on(&desk, m);
     let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
     assert!(
         on_desk(&m) > 0.8,
