@@ -17,9 +17,12 @@
 //! When the best of them runs on past the box's whole margin (a background behind, or an
 //! occluder before: a table top over a chair's seat), a surface that ends within the
 //! margin is taken instead when it scores at least half as well (the factor for a surface
-//! mostly outside the box): a strong mode's, or one of the weaker depth modes' (a thin
-//! object seen along its length, a floor lamp's pole from above, spreads over many depth
-//! bins and never makes a strong mode).
+//! mostly outside the box): a strong mode's that lies behind the winner (which hides part
+//! of it), or before it when it explains the box by itself (else it is an occluder of the
+//! winner: a chair before a desk), or one of the weaker depth modes' (a thin object seen
+//! along its length, a floor lamp's pole from above, spreads over many depth bins and
+//! never makes a strong mode). Strong modes whose cells a nearer mode's surface already
+//! holds (a slanted table top spans several) are not grown again.
 //! When no surface explains the box so, each is grown again across the larger step between
 //! the parts of one object (a lamp's shade in front of its pole), keeping only the pieces
 //! that adds inside the box.
