@@ -580,3 +580,5 @@ impl Segmenter for DepthSegmenter {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_views;

@@ -256,7 +256,7 @@ fn hue_survives_shading_but_not_another_colour() {
 }
 
 /// The tight box of a mask.
-fn mask_box(m: &Mask) -> [f32; 4] {
+pub(super) fn mask_box(m: &Mask) -> [f32; 4] {
     let (w, h) = (m.width, m.height);
     let px: Vec<(u32, u32)> = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
@@ -397,75 +397,6 @@ fn a_window_split_by_its_mullion_keeps_both_panes() {
     assert!(left < 0.05 && right > 0.8, "panes: {left:.2} {right:.2}");
 }
 
-/// A part of a rendered scene: its box (min, max) and colour.
-type Part = ([f64; 3], [f64; 3], [u8; 3]);
-
-/// A 160 x 200 view (focal length 160 pixels) from `eye` towards `at` of `parts`: colour,
-/// depth, the camera, and the mask of parts 1..=`last` (the object's).
-fn parts_view(
-    parts: &[Part],
-    eye: Point3<f64>,
-    at: Point3<f64>,
-    last: usize,
-) -> (RgbImage, DepthMap, FrameCamera, Mask) {
-    let k = Intrinsics {
-        fx: 160.0,
-        fy: 160.0,
-        cx: 79.5,
-        cy: 99.5,
-        width: 160,
-        height: 200,
-    };
-    let cam = FrameCamera {
-        color: k,
-        depth: None,
-        depth_size: (160, 200),
-        pose: look_at_pose(eye, at, Vector3::z()),
-        align: Matrix4::identity(),
-    };
-    let (color, depth, _) = render_coloured(&cam, parts, 0);
-    let mut lamp = Mask::new(160, 200);
-    for part in 1..=last {
-        let (_, _, m) = render_coloured(&cam, parts, part);
-        for (o, &v) in lamp.data.iter_mut().zip(&m.data) {
-            *o |= v;
-        }
-    }
-    (color, depth, cam, lamp)
-}
-
-#[test]
-fn a_floor_lamps_shade_pole_and_foot_are_one_mask_before_the_plant_behind() {
-    // A floor lamp 2.2 m away: a 40 cm shade 1.3-1.6 m up, which stands 20 cm in front of
-    // the 3 cm pole that holds it (a step no surface growth takes), and a round foot. A
-    // plant behind it, 1.2 m further, fills the middle of the lamp's box; a wall beyond.
-    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
-    let foot = ([2.08, -0.12, 0.0], [2.32, 0.12, 0.03], [200, 200, 200]);
-    let pole = ([2.185, -0.015, 0.03], [2.215, 0.015, 1.3], [190, 190, 190]);
-    let shade = ([2.0, -0.2, 1.3], [2.4, 0.2, 1.6], [30, 30, 30]);
-    let plant = ([3.4, -0.3, 0.2], [3.8, 0.3, 1.2], [40, 140, 50]);
-    let wall = ([5.0, -3.0, 0.0], [5.1, 3.0, 3.0], [170, 170, 170]);
-    let parts = [floor, foot, pole, shade, plant, wall];
-    let (eye, at) = (Point3::new(0.0, 0.0, 1.0), Point3::new(2.2, 0.0, 0.8));
-    let (color, depth, cam, lamp) = parts_view(&parts, eye, at, 3);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&lamp);
-    let grouped = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(
-        grouped.iou(&lamp) > 0.7,
-        "IoU {} (box {bbox:?})",
-        grouped.iou(&lamp)
-    );
-    // One surface at a time, the plant behind fills more of the box than the shade.
-    let alone = DepthSegmenter::from_spec("groups=off").unwrap();
-    let m = alone.segment(&input, bbox).unwrap();
-    assert!(m.iou(&lamp) < 0.5, "IoU {} without groups", m.iou(&lamp));
-}
-
 #[test]
 fn what_the_larger_step_reaches_past_the_box_is_not_a_part() {
     // A brown cabinet 20 cm in front of a grey wall, seen level: across the step between
@@ -529,111 +460,4 @@ fn a_surface_that_explains_its_box_is_not_joined_to_what_stands_beside_it() {
     };
     let joined = always.segment(&input, bbox).unwrap();
     assert!(joined.get(56, 40) && joined.iou(&object) < 0.9);
-}
-
-#[test]
-fn a_floor_lamp_before_a_wall_is_not_the_wall_behind_its_pole() {
-    // A floor lamp seen from under a metre, looking down along it, 60 cm in front of a grey
-    // wall: a 2 cm pole and a round foot, the shade above the frame. Between the frame's
-    // top and the foot the box is mostly wall, which runs on past the box's sides; the
-    // pole spreads over many depth bins and makes only a weak mode.
-    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
-    let foot = ([0.88, -0.12, 0.0], [1.12, 0.12, 0.03], [200, 200, 200]);
-    let pole = ([0.99, -0.01, 0.03], [1.01, 0.01, 1.6], [190, 190, 190]);
-    let wall = ([1.6, -3.0, 0.0], [1.7, 3.0, 3.0], [170, 170, 170]);
-    let parts = [floor, foot, pole, wall];
-    let (eye, at) = (Point3::new(0.3, -0.6, 1.5), Point3::new(1.0, 0.0, 0.6));
-    let (color, depth, cam, lamp) = parts_view(&parts, eye, at, 2);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&lamp);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(m.iou(&lamp) > 0.8, "IoU {} (box {bbox:?})", m.iou(&lamp));
-    // From the strong modes alone, the wall explains the box best.
-    let strong = DepthSegmenter::from_spec("weak=off").unwrap();
-    let m = strong.segment(&input, bbox).unwrap();
-    assert!(m.iou(&lamp) < 0.3, "IoU {} with weak=off", m.iou(&lamp));
-}
-
-/// The share of mask `m` that lies on `object`.
-fn share_on(object: &Mask, m: &Mask) -> f64 {
-    let both = m.data.iter().zip(&object.data).filter(|(a, b)| **a && **b);
-    both.count() as f64 / m.count().max(1) as f64
-}
-
-#[test]
-fn a_chairs_back_above_the_table_before_it_is_not_the_table_top() {
-    // A chair pushed to the far side of a table, seen from across it from above: its back
-    // shows above the table top and its legs beside it, so the chair's box holds the table
-    // top's corner, which is nearer and runs on past the box's side.
-    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
-    let (y0, y1) = (0.35, 0.79);
-    let seat = ([2.35, y0, 0.42], [2.8, y1, 0.46], [40, 70, 160]);
-    let back = ([2.75, y0, 0.46], [2.8, y1, 0.95], [40, 70, 160]);
-    let legs = [(2.35, y0), (2.35, y1 - 0.03), (2.77, y0), (2.77, y1 - 0.03)]
-        .map(|(x, y)| ([x, y, 0.0], [x + 0.03, y + 0.03, 0.42], [40, 70, 160]));
-    let top = ([1.5, -0.6, 0.72], [2.3, 0.6, 0.75], [50, 50, 55]);
-    let wall = ([3.6, -3.0, 0.0], [3.7, 3.0, 3.0], [200, 200, 195]);
-    let parts = [
-        floor, seat, back, legs[0], legs[1], legs[2], legs[3], top, wall,
-    ];
-    let (eye, at) = (Point3::new(0.6, -0.2, 1.4), Point3::new(2.4, 0.3, 0.5));
-    let (color, depth, cam, chair) = parts_view(&parts, eye, at, 6);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&chair);
-    let on_chair = |m: &Mask| share_on(&chair, m);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(
-        on_chair(&m) > 0.9 && m.iou(&chair) > 0.3,
-        "on the chair {}, IoU {} (box {bbox:?})",
-        on_chair(&m),
-        m.iou(&chair)
-    );
-    // The mask is the back (the seat and legs below the table are another surface, and
-    // other views complete the box). Without the preference the table top explains the
-    // box best.
-    let m = DepthSegmenter::from_spec("within=off").unwrap();
-    let m = m.segment(&input, bbox).unwrap();
-    assert!(
-        on_chair(&m) < 0.3,
-        "on the chair {} with within=off",
-        on_chair(&m)
-    );
-}
-
-#[test]
-fn a_chair_before_a_desk_against_the_wall_does_not_replace_the_desk() {
-    // A desk against a wall panelled in the desk's own wood, a chair pushed up to it on the
-    // near side. The desk runs on into the wall and past its box, and colour does not
-    // part them; the chair's back ends within that box, but it is nearer than the desk:
-    // an occluder of the desk, not the object behind one.
-    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
-    let desk = ([2.6, -0.6, 0.0], [3.2, 0.6, 0.75], [120, 80, 45]);
-    let wall = ([3.2, -3.0, 0.0], [3.3, 3.0, 3.0], [125, 85, 50]);
-    let (y0, y1) = (-0.2, 0.24);
-    let seat = ([2.15, y0, 0.42], [2.6, y1, 0.46], [40, 40, 45]);
-    let back = ([2.15, y0, 0.46], [2.2, y1, 0.95], [40, 40, 45]);
-    let parts = [floor, desk, seat, back, wall];
-    let (eye, at) = (Point3::new(0.4, -0.3, 1.5), Point3::new(2.9, 0.0, 0.5));
-    let (color, depth, cam, desk) = parts_view(&parts, eye, at, 1);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&desk);
-    let on_desk = |m: &Mask| share_on(&desk, m);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(
-        on_desk(&m) > 0.8,
-        "on the desk {} (box {bbox:?})",
-        on_desk(&m)
-    );
 }
