@@ -100,8 +100,8 @@ impl DepthSegmenter {
 
     /// Whether the box's cells at mode `target` (those a growth from it would seed on) lie
     /// mostly on surfaces already grown: a slanted table top spreads over several strong
-    /// modes that all grow into the one surface, and growing it again would crowd out a
-    /// surface farther back.
+    /// modes that all grow into the one surface, and counting each would crowd a surface
+    /// farther back out of the modes grown.
     pub(super) fn mode_grown(g: &Grid, target: f64, grown: &[(f64, Vec<bool>)]) -> bool {
         let tol = 0.05 + 0.03 * target;
         let (mut at, mut held) = (0usize, 0usize);

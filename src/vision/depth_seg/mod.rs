@@ -22,7 +22,7 @@
 //! winner: a chair before a desk), or one of the weaker depth modes' (a thin object seen
 //! along its length, a floor lamp's pole from above, spreads over many depth bins and
 //! never makes a strong mode). Strong modes whose cells a nearer mode's surface already
-//! holds (a slanted table top spans several) are not grown again.
+//! holds (a slanted table top spans several) do not count towards the four modes grown.
 //! When no surface explains the box so, each is grown again across the larger step between
 //! the parts of one object (a lamp's shade in front of its pole), keeping only the pieces
 //! that adds inside the box.
@@ -486,12 +486,15 @@ impl Segmenter for DepthSegmenter {
         };
         let mut plain = Vec::with_capacity(4);
         let mut scored = Vec::with_capacity(8);
+        // Four surfaces near to far; a mode whose cells a nearer mode's surface already
+        // holds (a slanted table top spans several) is grown too but not counted, up to 8.
+        let mut distinct = 0;
         for &m in &modes {
-            if plain.len() == 4 {
+            if distinct == 4 || plain.len() == 8 {
                 break;
             }
-            if self.prefer_within && Self::mode_grown(&g, m, &plain) {
-                continue;
+            if !(self.prefer_within && Self::mode_grown(&g, m, &plain)) {
+                distinct += 1;
             }
             let (region, outside) = self.surface(&g, m, cell_px);
             let mut cands = Vec::with_capacity(2);
