@@ -88,7 +88,8 @@ pub struct DepthSegmenter {
     /// this fraction of the largest (0 turns it off; spec `depth:weak=off`).
     pub weak_mode: f64,
     /// When the best surface runs on past the box's margin, the strong modes' surfaces that
-    /// end within it compete again at half the bar (spec `depth:within=off` turns it off).
+    /// end within it compete again: at half its score behind it, at `group_below` before it
+    /// (spec `depth:within=off` turns it off, and the segmenter is then the one before it).
     pub prefer_within: bool,
 }
 
@@ -538,7 +539,7 @@ impl Segmenter for DepthSegmenter {
                 if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
                     // What was set aside for running past the margin does not come back
                     // joined to the surface that replaced it.
-                    if ended && Self::runs_past_margin(&g, &whole) {
+                    if ended && self.prefer_within && Self::runs_past_margin(&g, &whole) {
                         continue;
                     }
                     let sc = score(&whole, g.outside_share(&whole));
