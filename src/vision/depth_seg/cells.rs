@@ -2,6 +2,7 @@
 //! edge creases and holes closed after growth.
 
 use super::{DepthSegmenter, Grid};
+use crate::geometry::cloud::median;
 
 impl DepthSegmenter {
     /// Share of the box that the bounding rectangle of the region's in-box cells covers
@@ -87,11 +88,7 @@ impl DepthSegmenter {
             .filter(|&i| region[i] && g.inb[i] && g.z[i] > 0.0)
             .map(|i| g.z[i])
             .collect();
-        if z.is_empty() {
-            return 0.0;
-        }
-        let k = z.len() / 2;
-        *z.select_nth_unstable_by(k, f64::total_cmp).1
+        median(&mut z)
     }
 
     /// `region` with the parts of the object that the growth across the larger step

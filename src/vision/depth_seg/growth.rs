@@ -27,7 +27,7 @@ impl DepthSegmenter {
         (rule, reach): (Colour, Reach),
     ) -> Vec<bool> {
         let colour = rule != Colour::Off;
-        let tol = 0.05 + 0.03 * target;
+        let tol = Self::seed_tol(target);
         let near = |i: usize| {
             g.inb[i] && g.z[i] > 0.0 && (g.z[i] - target).abs() <= tol && !blocked[i] && !g.edge[i]
         };
@@ -98,12 +98,17 @@ impl DepthSegmenter {
         region
     }
 
+    /// How far from mode `target` (m) a cell's depth may lie to seed a growth from it.
+    fn seed_tol(target: f64) -> f64 {
+        0.05 + 0.03 * target
+    }
+
     /// Whether the box's cells at mode `target` (those a growth from it would seed on) lie
     /// mostly on surfaces already grown: a slanted table top spreads over several strong
     /// modes that all grow into the one surface, and counting each would crowd a surface
     /// farther back out of the modes grown.
     pub(super) fn mode_grown(g: &Grid, target: f64, grown: &[(f64, Vec<bool>)]) -> bool {
-        let tol = 0.05 + 0.03 * target;
+        let tol = Self::seed_tol(target);
         let (mut at, mut held) = (0usize, 0usize);
         for i in (0..g.z.len()).filter(|&i| g.inb[i] && g.z[i] > 0.0) {
             if (g.z[i] - target).abs() <= tol {
