@@ -161,6 +161,9 @@ pub struct Config {
     /// Fault injection for the crash tests: pause this long between the steps of a scene
     /// import or delete (env `GROUNDER_TEST_STEP_PAUSE_MS`; 0, the default, in service).
     pub test_step_pause_ms: u64,
+    /// Fault injection for the race tests: a worker pauses this long between claiming a
+    /// job and loading its scene (env `GROUNDER_TEST_CLAIM_PAUSE_MS`; 0 in service).
+    pub test_claim_pause_ms: u64,
     /// Method settings (`[agent]` table).
     pub agent: crate::agent::AgentParams,
     /// VLM client settings (`[vlm]` table); [`load`] always sets them, a `Config` built in
@@ -213,6 +216,7 @@ impl Default for Config {
             allow_anonymous: false,
             webhook_allow_private: false,
             test_step_pause_ms: 0,
+            test_claim_pause_ms: 0,
             agent: crate::agent::AgentParams::default(),
             vlm: None,
         }

@@ -101,6 +101,7 @@ impl Application {
                     )
                 }),
                 max_attempts: cfg.max_attempts,
+                claim_pause: std::time::Duration::from_millis(cfg.test_claim_pause_ms),
                 ..WorkerConfig::new(cfg.workers, cfg.data_dir.clone())
             },
         );

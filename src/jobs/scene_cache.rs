@@ -186,6 +186,21 @@ impl SceneCache {
     }
 }
 
+/// The scene as the job was claimed: frames appended since (between the claim and the
+/// load) are left out, so a caller who saw the job running never changes what it grounds
+/// in. Frames are only appended while a job runs (removal waits), so they come last.
+pub(crate) fn frames_at_claim(scene: Arc<SceneData>, claimed: Option<i64>) -> Arc<SceneData> {
+    match claimed {
+        Some(n) if (n.max(0) as usize) < scene.frames.len() => {
+            let n = n.max(0) as usize;
+            let mut only = (*scene).clone();
+            only.frames.retain(|f| f.idx < n);
+            Arc::new(only)
+        }
+        _ => scene,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -229,6 +244,18 @@ mod tests {
             frames,
             instance_labels: None,
             room: Default::default(),
+        }
+    }
+
+    #[test]
+    fn a_job_keeps_the_frames_its_scene_had_when_claimed() {
+        let all = Arc::new(scene("a", 6));
+        let kept = frames_at_claim(all.clone(), Some(4));
+        let idx: Vec<usize> = kept.frames.iter().map(|f| f.idx).collect();
+        assert_eq!(idx, [0, 1, 2, 3]);
+        assert_eq!(all.frames.len(), 6, "the shared scene is untouched");
+        for same in [None, Some(6), Some(9)] {
+            assert!(Arc::ptr_eq(&frames_at_claim(all.clone(), same), &all));
         }
     }
 

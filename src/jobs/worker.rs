@@ -33,6 +33,9 @@ pub struct WorkerConfig {
     pub job_retention: Option<Duration>,
     /// Attempts before a job whose lease keeps running out fails (PostgreSQL).
     pub max_attempts: i64,
+    /// Fault injection for the race tests: pause between claiming a job and loading its
+    /// scene (zero in service).
+    pub claim_pause: Duration,
 }
 
 impl WorkerConfig {
@@ -47,6 +50,7 @@ impl WorkerConfig {
             max_concurrent_indexing: 2,
             job_retention: None,
             max_attempts: 3,
+            claim_pause: Duration::ZERO,
         }
     }
 }
@@ -381,9 +385,17 @@ impl JobSystem {
             token.clone(),
         ));
         tracing::info!(job = %job.id, attempt = job.attempts, "job started");
+        if !self.cfg.claim_pause.is_zero() {
+            tokio::time::sleep(self.cfg.claim_pause).await;
+        }
         // The scene's files stay in the local cache while the job runs.
         let loaded = match self.acquire_scene(&job.scene_id).await {
-            Ok(pin) => self.load_scene(&job.scene_id).await.map(|s| (s, pin)),
+            Ok(pin) => self.load_scene(&job.scene_id).await.map(|s| {
+                (
+                    super::scene_cache::frames_at_claim(s, job.scene_frames),
+                    pin,
+                )
+            }),
             Err(e) => Err(e),
         };
         let outcome = match loaded {

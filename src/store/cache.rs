@@ -77,6 +77,7 @@ mod tests {
             result: None,
             owner: None,
             webhook_url: None,
+            scene_frames: None,
         }
     }
 

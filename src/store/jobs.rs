@@ -66,6 +66,9 @@ pub struct JobRecord {
     /// The API key that created the job (None: created without keys).
     pub owner: Option<i64>,
     pub webhook_url: Option<String>,
+    /// How many frames the scene had when this job was claimed (set by
+    /// `claim_next_job` only): frames appended later do not reach the running job.
+    pub scene_frames: Option<i64>,
 }
 
 /// Jobs to create at once (one per query, same scene).
@@ -113,6 +116,7 @@ pub(super) fn job_from_row(r: &sqlx::any::AnyRow) -> Result<JobRecord, StoreErro
         result: parse_json(r.try_get("result")?),
         owner: r.try_get("owner")?,
         webhook_url: r.try_get("webhook_url")?,
+        scene_frames: None,
     })
 }
 

@@ -59,7 +59,14 @@ impl Store {
             tx.commit().await?;
             return Ok(None);
         };
-        let job = job_from_row(&row)?;
+        let mut job = job_from_row(&row)?;
+        // Read in the claim's transaction: an append that a caller starts once it sees the
+        // job running commits after this, so it is never counted.
+        job.scene_frames =
+            sqlx::query_scalar(&self.sql("SELECT frame_count FROM scenes WHERE id = ?"))
+                .bind(&job.scene_id)
+                .fetch_optional(&mut *tx)
+                .await?;
         sqlx::query(&self.sql("DELETE FROM job_trace WHERE job_id = ?"))
             .bind(&job.id)
             .execute(&mut *tx)

@@ -65,6 +65,9 @@ async fn frames_appended_while_a_job_runs_do_not_reach_it() {
     let dir = tempfile::tempdir().unwrap();
     let mut cfg = test_config(dir.path().to_path_buf());
     cfg.pipeline = "test:delay_ms=1500".into();
+    // The frames below are appended after the job is claimed and before it loads its
+    // scene (the race a loaded CI runner once hit): they must not reach it either.
+    cfg.test_claim_pause_ms = 1500;
     let app = TestApp::spawn_with(cfg).await;
     // Frames 0, 20, 40 (cameras at x = 0, 0.5, 1) and 60 (inf pose).
     let r = app
