@@ -229,7 +229,7 @@ async fn a_scene_with_a_running_job_cannot_be_deleted() {
     let sid = app.upload_tiny_scene(4).await;
     let id = app.submit_job(&sid, "the sofa").await;
     if let Err(j) = app
-        .wait_status(&id, "running", Duration::from_secs(2))
+        .wait_status(&id, "running", Duration::from_secs(10))
         .await
     {
         panic!("the job never started: {j}");

@@ -37,7 +37,8 @@ async fn wait_file(p: &std::path::Path, within: Duration) -> bool {
 async fn the_warmed_points_wait_for_a_running_job_and_equal_the_computed_ones() {
     let dir = tempfile::tempdir().unwrap();
     let mut cfg = test_config(dir.path().to_path_buf());
-    cfg.pipeline = "test:delay_ms=2500".into();
+    // Long enough that an upload and the 800 ms wait below end within it on a loaded runner.
+    cfg.pipeline = "test:delay_ms=4000".into();
     let app = TestApp::spawn_with(cfg).await;
 
     // Nothing runs: the export of a new scene is made without being asked for.
