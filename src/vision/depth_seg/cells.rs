@@ -171,13 +171,24 @@ impl DepthSegmenter {
         recede > rise
     }
 
-    /// Keep the largest 4-connected component of `region`, and any other that holds at
-    /// least half as many cells and is of its colour (mean RGB within `colour_tol`, summed
-    /// over the channels). Stray bits go; one surface split by something before it (the
-    /// panes of a window either side of its mullion) stays whole.
+    /// Keep the largest 4-connected component of the in-box cells of `region`, and any
+    /// other that holds at least half as many cells and either is of its colour (mean RGB
+    /// within `colour_tol`, summed over the channels) or lies wholly within the box (the
+    /// grown surface it belongs to does not leave the box). Stray bits go; one surface
+    /// split by something before it (the panes of a window either side of its mullion)
+    /// stays whole; and a part of another colour at the object's depth that nothing joins
+    /// to the room outside the box (a plant's pot below its foliage, the stem too thin to
+    /// resolve) is the object's, as the box around both says, not a neighbour's.
     pub(super) fn main_components(g: &Grid, region: &[bool], colour_tol: f64) -> Vec<bool> {
+        // Cells whose grown piece reaches outside the box.
+        let mut leaves = vec![false; region.len()];
+        for piece in g.components(|i| region[i]) {
+            if piece.iter().any(|&i| !g.inb[i]) {
+                piece.iter().for_each(|&i| leaves[i] = true);
+            }
+        }
         let comps: Vec<(Vec<usize>, [f64; 3])> = g
-            .components(|i| region[i])
+            .components(|i| region[i] && g.inb[i])
             .into_iter()
             .map(|cells| {
                 let mut rgb = [0.0; 3];
@@ -198,7 +209,8 @@ impl DepthSegmenter {
         let (top_n, top_mean) = (comps[top].0.len(), comps[top].1);
         for (k, (cells, mean)) in comps.iter().enumerate() {
             let near: f64 = mean.iter().zip(top_mean).map(|(a, b)| (a - b).abs()).sum();
-            if k == top || (2 * cells.len() >= top_n && near <= colour_tol) {
+            let enclosed = !cells.iter().any(|&i| leaves[i]);
+            if k == top || (2 * cells.len() >= top_n && (near <= colour_tol || enclosed)) {
                 cells.iter().for_each(|&i| out[i] = true);
             }
         }

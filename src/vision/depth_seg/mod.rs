@@ -552,8 +552,7 @@ impl Segmenter for DepthSegmenter {
         let Some((_, region)) = best else {
             return Ok(Mask::from_box(cw, ch, bbox));
         };
-        let inside: Vec<bool> = (0..region.len()).map(|i| region[i] && g.inb[i]).collect();
-        let mut region = Self::main_components(&g, &inside, self.colour_tol);
+        let mut region = Self::main_components(&g, &region, self.colour_tol);
         Self::close_edges(&g, &mut region);
         Self::fill_holes(&g, &mut region);
         let mut mask = Mask::new(cw, ch);
