@@ -334,6 +334,7 @@ pub async fn run(
         } else {
             None
         };
+    let part_params = cp.partial.clone();
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
@@ -388,17 +389,28 @@ pub async fn run(
             let part_only = |i: usize| super::ensemble_boxes::part_only(&vb, i, partial);
             let region =
                 |i: usize| part_only(i).filter(|_| params.consensus.footprints_vote_inside);
+            // The VLM's box of the whole object in a view bounds it as the chosen box
+            // does, when nothing hides part of the object there.
+            let vlm_box = |i: usize| vb.iter().find(|v| v.0 == i && v.2 == BoxFrom::VlmBox);
             let views: Vec<SegmentedView> = clouds
                 .iter()
-                .map(|(i, c)| SegmentedView {
-                    index: *i,
-                    camera: &sc.frames[*i].camera,
-                    depth: sc.frames[*i].depth.as_ref(),
-                    mask: &c.mask,
-                    points: &c.points,
-                    region: region(*i),
-                    partial: false,
-                    bound: None,
+                .map(|(i, c)| {
+                    let (camera, depth) = (&sc.frames[*i].camera, sc.frames[*i].depth.as_ref());
+                    let bound = vlm_box(*i).and_then(|v| {
+                        let seen = partial_view(&c.mask, camera, depth, &part_params);
+                        let (o, e) = (bound_occluded, bound_edge);
+                        view_bound(camera, v.1, &seen, o, e, params)
+                    });
+                    SegmentedView {
+                        index: *i,
+                        camera,
+                        depth,
+                        mask: &c.mask,
+                        points: &c.points,
+                        region: region(*i),
+                        partial: false,
+                        bound,
+                    }
                 })
                 .collect();
             let frames: Vec<_> = sc

@@ -27,8 +27,11 @@ pub struct SegmentedView<'a> {
     /// The mask holds only part of its object (see [`super::partial_view`]); meaningful for
     /// the anchor, where it lets the chamfer filter keep views that see more.
     pub partial: bool,
-    /// Where the object can be at all (see [`super::bound`]); meaningful for the anchor,
-    /// whose box bounds the points the other views give.
+    /// Where the object can be at all (see [`super::bound`]). The anchor's box bounds the
+    /// points the other views give. Another view's bound (the VLM's box of the whole
+    /// object there, asked when the anchor saw a part) bounds the anchor's points and the
+    /// other views' too: a close-up whose mask ran on over the wall around a picture keeps
+    /// only what projects into the picture's box seen from across the room.
     pub bound: Option<ViewBound<'a>>,
 }
 
@@ -43,6 +46,9 @@ pub struct VoteStats {
     /// Points of the other views dropped, before the chamfer test, for projecting outside
     /// the chosen view's box ([`SegmentedView::bound`]).
     pub outside_anchor_box: usize,
+    /// Points of the anchor and the other views dropped, before the chamfer test, for
+    /// projecting outside another view's whole-object box ([`SegmentedView::bound`]).
+    pub outside_view_boxes: usize,
 }
 
 /// The fusion and what led to it.
@@ -70,21 +76,47 @@ pub fn fuse_segmented(
         .iter()
         .map(|v| anchor.bound.as_ref().map(|b| within_bound(v.points, b)))
         .collect();
-    let points_of = |k: usize| bounded[k].as_deref().unwrap_or(others[k].points);
+    let in_anchor_box = |k: usize| bounded[k].as_deref().unwrap_or(others[k].points);
     let outside_anchor_box = (0..others.len())
-        .map(|k| others[k].points.len() - points_of(k).len())
+        .map(|k| others[k].points.len() - in_anchor_box(k).len())
         .sum();
+    // Nor are the points, the anchor's included, that another view's whole-object box
+    // rules out (a bound that would leave a cloud empty is not applied to it).
+    let view_bounds: Vec<(usize, &ViewBound<'_>)> = others
+        .iter()
+        .filter_map(|v| v.bound.as_ref().map(|b| (v.index, b)))
+        .collect();
+    let by_views = |own: usize, pts: &[Point3<f64>]| -> Option<Vec<Point3<f64>>> {
+        let mut kept: Option<Vec<Point3<f64>>> = None;
+        for (_, b) in view_bounds.iter().filter(|(i, _)| *i != own) {
+            let next = within_bound(kept.as_deref().unwrap_or(pts), b);
+            if !next.is_empty() {
+                kept = Some(next);
+            }
+        }
+        kept
+    };
+    let anchor_bounded = by_views(anchor.index, anchor.points);
+    let anchor_pts = anchor_bounded.as_deref().unwrap_or(anchor.points);
+    let view_bounded: Vec<Option<Vec<Point3<f64>>>> = (0..others.len())
+        .map(|k| by_views(others[k].index, in_anchor_box(k)))
+        .collect();
+    let points_of = |k: usize| view_bounded[k].as_deref().unwrap_or(in_anchor_box(k));
+    let outside_view_boxes = anchor.points.len() - anchor_pts.len()
+        + (0..others.len())
+            .map(|k| in_anchor_box(k).len() - points_of(k).len())
+            .sum::<usize>();
     let other_pts: Vec<(usize, &[Point3<f64>])> = (0..others.len())
         .map(|k| (others[k].index, points_of(k)))
         .collect();
-    let decisions = chamfer_decisions(anchor.points, &other_pts, anchor.partial, params);
+    let decisions = chamfer_decisions(anchor_pts, &other_pts, anchor.partial, params);
     let mut voters = vec![MaskView {
         camera: anchor.camera,
         depth: anchor.depth,
         mask: anchor.mask,
         region: anchor.region,
     }];
-    let mut owned = vec![voxel_downsample(anchor.points, params.fusion_voxel)];
+    let mut owned = vec![voxel_downsample(anchor_pts, params.fusion_voxel)];
     for (k, (v, d)) in others.iter().zip(&decisions).enumerate() {
         if d.kept {
             voters.push(MaskView {
@@ -113,18 +145,19 @@ pub fn fuse_segmented(
         anchor_before: clouds[0].len(),
         anchor_after: voted[0].len(),
         outside_anchor_box,
+        outside_view_boxes,
     };
     let carve = |pts: &[Point3<f64>]| free_space_votes(pts, frames, params);
     let refs: Vec<&[Point3<f64>]> = voted.iter().map(Vec::as_slice).collect();
     let fusion = fuse_clouds(
-        anchor.points.len(),
+        anchor_pts.len(),
         &refs,
         decisions,
         params.consensus.free_space.then_some(&carve as _),
         params,
     );
     let anchor_kept = if voted[0].is_empty() {
-        anchor.points.to_vec()
+        anchor_pts.to_vec()
     } else {
         voted[0].clone()
     };

@@ -365,3 +365,52 @@ fn the_box_of_a_close_up_cut_by_the_frames_edge_does_not_bound_the_rest() {
     // The shade above the frame's top edge stays, wider than the foot in the frame.
     assert!(b.max[2] > 1.5 && b.max[0] - b.min[0] > 0.3, "{b:?}");
 }
+
+const WALL: u16 = 7;
+const PICTURE: u16 = 8;
+
+#[test]
+fn another_views_whole_object_box_bounds_a_close_up_that_ran_over_the_wall() {
+    // A 1 m x 0.6 m picture on a wall; the chosen close-up sees its right edge, cut by the
+    // frame's top and bottom, and its region ran on over the wall right of it. From across
+    // the room the VLM boxed the whole picture. Without that box, the fused box keeps the
+    // wall.
+    let parts = vec![
+        ([-3.0, -3.0, -0.02], [4.0, 4.0, 0.0], 1),
+        ([-3.0, 2.0, 0.0], [3.0, 2.1, 3.0], WALL),
+        ([-0.5, 1.97, 1.1], [0.5, 2.0, 1.7], PICTURE),
+    ];
+    let params = GeometryParams::default();
+    let close = shot_of(
+        [0.8, 1.2, 1.4],
+        [0.8, 2.0, 1.4],
+        &parts,
+        &[WALL, PICTURE],
+        &params,
+    );
+    let far = shot([0.6, 0.5, 1.4], [0.0, 2.0, 1.4], &parts, PICTURE, &params);
+    let far_box = far.bound(&params).expect("nothing hides the picture there");
+    assert!(!far_box.open, "{far_box:?}");
+    let frames = [(&close.cam, &close.depth), (&far.cam, &far.depth)];
+    let fuse = |bound| {
+        let other = SegmentedView {
+            bound,
+            ..far.view(1, false)
+        };
+        fuse_segmented(close.view(0, true), &[other], &frames, &params)
+    };
+    let picture = Aabb {
+        min: [-0.5, 1.97, 1.1],
+        max: [0.5, 2.0, 1.7],
+    };
+    let free = fuse(None).fusion.aabb.expect("a box");
+    assert!(
+        free.max[0] > 1.0 && free.iou(&picture) < 0.5,
+        "the wall right of the picture: {free:?}"
+    );
+    let out = fuse(Some(far_box));
+    assert!(out.votes.outside_view_boxes > 0, "{:?}", out.votes);
+    assert!(out.fusion.views[0].kept, "{:?}", out.fusion.views);
+    let b = out.fusion.aabb.expect("a box");
+    assert!(b.max[0] < 0.6 && b.iou(&picture) > 0.7, "{b:?}");
+}
