@@ -263,20 +263,18 @@ pub async fn run(
     };
     // The chosen box, when drawn on the image (not a candidate's), and what it bounds.
     let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
-    let (bound_occluded, bound_edge) = (cp.partial.min_occluded, cp.partial.border_frac);
     // A view's candidate must agree with the chosen view before it is used.
     let tc = Instant::now();
     let has_candidate = view_boxes.iter().any(|v| v.2 == BoxFrom::Candidate);
     let (checked, candidate_check, decoded) = if has_candidate && cp.in_views_check {
         let footprints: Vec<(usize, [f32; 4])> = views.iter().map(|v| (v.index, v.bbox)).collect();
-        let (vs, ap) = (vseg.clone(), anchor_pts.clone());
+        let (vs, ap, rule) = (vseg.clone(), anchor_pts.clone(), cp.partial.clone());
         let mut vbs = view_boxes.clone();
         let anchor_idx = choice.frame_idx;
         let (checked, trace, vbs, decoded) = tokio::task::spawn_blocking(move || {
             let cam = &vs.scene.frames[anchor_idx].camera;
-            let (o, e) = (bound_occluded, bound_edge);
             let bound =
-                anchor_box.and_then(|b| view_bound(cam, b, &anchor_partial, o, e, &vs.params));
+                anchor_box.and_then(|b| view_bound(cam, b, &anchor_partial, &rule, &vs.params));
             let anchor = (&ap[..], bound.as_ref());
             let (checked, trace) = check_candidates(&vs, anchor, &footprints, &mut vbs, &decoded);
             (checked, trace, vbs, decoded)
@@ -334,11 +332,11 @@ pub async fn run(
         } else {
             None
         };
-    let part_params = cp.partial.clone();
+    let rule = cp.partial.clone();
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
-            let params = &vseg.params;
+            let (params, rule) = (&vseg.params, &rule);
             let ts = Instant::now();
             // The views segmented while their candidates were checked are not redone.
             let done = |i: &usize, b: &[f32; 4]| checked.get(i).is_some_and(|(cb, _)| cb == b);
@@ -370,10 +368,8 @@ pub async fn run(
             let af = &sc.frames[anchor_idx];
             // The box drawn on the chosen image (not a candidate's, which may be a part)
             // bounds what the other views may add.
-            let bound = anchor_box.and_then(|b| {
-                let (o, e) = (bound_occluded, bound_edge);
-                view_bound(&af.camera, b, &anchor_partial, o, e, params)
-            });
+            let bound =
+                anchor_box.and_then(|b| view_bound(&af.camera, b, &anchor_partial, rule, params));
             let anchor_view = SegmentedView {
                 index: anchor_idx,
                 camera: &af.camera,
@@ -397,9 +393,8 @@ pub async fn run(
                 .map(|(i, c)| {
                     let (camera, depth) = (&sc.frames[*i].camera, sc.frames[*i].depth.as_ref());
                     let bound = vlm_box(*i).and_then(|v| {
-                        let seen = partial_view(&c.mask, camera, depth, &part_params);
-                        let (o, e) = (bound_occluded, bound_edge);
-                        view_bound(camera, v.1, &seen, o, e, params)
+                        let seen = partial_view(&c.mask, camera, depth, rule);
+                        view_bound(camera, v.1, &seen, rule, params)
                     });
                     SegmentedView {
                         index: *i,

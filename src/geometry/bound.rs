@@ -17,7 +17,7 @@
 use nalgebra::Point3;
 
 use super::camera::transform_point;
-use super::{FrameCamera, GeometryParams, PartialView};
+use super::{FrameCamera, GeometryParams, PartialParams, PartialView};
 
 /// The chosen view's bound: its camera, the box (colour pixels, widened) and whether a
 /// side of it lies on the frame's edge.
@@ -34,17 +34,17 @@ pub struct ViewBound<'a> {
 /// The bound `bbox` (colour pixels of `camera`, as chosen) puts on its object, widened by
 /// `consensus.anchor_box_margin` of its size and the mask votes' pose tolerance; `None`
 /// when it puts none: switched off, a degenerate box, or `partial` finds a nearer surface
-/// along the mask's outline (`partial.occluded` at or above `min_occluded`).
+/// along the mask's outline (`partial.occluded` at or above `rule.min_occluded`). A side
+/// within `rule.border_frac` of the image's width from the frame's edge makes it `open`.
 pub fn view_bound<'a>(
     camera: &'a FrameCamera,
     bbox: [f32; 4],
     partial: &PartialView,
-    min_occluded: f64,
-    border_frac: f64,
+    rule: &PartialParams,
     params: &GeometryParams,
 ) -> Option<ViewBound<'a>> {
     let c = &params.consensus;
-    if !c.anchor_box_bound || partial.occluded >= min_occluded {
+    if !c.anchor_box_bound || partial.occluded >= rule.min_occluded {
         return None;
     }
     let b = bbox.map(f64::from);
@@ -56,7 +56,7 @@ pub fn view_bound<'a>(
         f64::from(camera.color.width),
         f64::from(camera.color.height),
     );
-    let edge = border_frac * w;
+    let edge = rule.border_frac * w;
     // Pose error moves a point by about as much as the mask votes allow for.
     let tol = f64::from(super::consensus::pose_tolerance_px(
         params,
@@ -150,8 +150,7 @@ mod tests {
             &cam,
             [40.0, 30.0, 60.0, 50.0],
             &whole(),
-            0.1,
-            0.01,
+            &PartialParams::default(),
             &params(),
         );
         let b = b.expect("a whole object's box bounds it");
@@ -176,8 +175,7 @@ mod tests {
             &cam,
             [40.0, 30.0, 100.0, 50.0],
             &whole(),
-            0.1,
-            0.01,
+            &PartialParams::default(),
             &params(),
         );
         let b = b.expect("bounded on three sides");
@@ -201,18 +199,12 @@ mod tests {
             occluded: 0.3,
             ..whole()
         };
-        assert!(view_bound(&cam, bx, &hidden, 0.1, 0.01, &params()).is_none());
+        let rule = PartialParams::default();
+        assert!(view_bound(&cam, bx, &hidden, &rule, &params()).is_none());
         let mut off = params();
         off.consensus.anchor_box_bound = false;
-        assert!(view_bound(&cam, bx, &whole(), 0.1, 0.01, &off).is_none());
-        assert!(view_bound(
-            &cam,
-            [40.0, 30.0, 40.0, 50.0],
-            &whole(),
-            0.1,
-            0.01,
-            &params()
-        )
-        .is_none());
+        assert!(view_bound(&cam, bx, &whole(), &rule, &off).is_none());
+        let flat = [40.0, 30.0, 40.0, 50.0];
+        assert!(view_bound(&cam, flat, &whole(), &rule, &params()).is_none());
     }
 }

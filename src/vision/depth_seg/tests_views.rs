@@ -12,38 +12,75 @@ use nalgebra::{Matrix4, Point3, Vector3};
 /// A part of a rendered scene: its box (min, max) and colour.
 type Part = ([f64; 3], [f64; 3], [u8; 3]);
 
-/// A 160 x 200 view (focal length 160 pixels) from `eye` towards `at` of `parts`: colour,
-/// depth, the camera, and the mask of parts 1..=`last` (the object's).
-fn parts_view(
-    parts: &[Part],
-    eye: Point3<f64>,
-    at: Point3<f64>,
-    last: usize,
-) -> (RgbImage, DepthMap, FrameCamera, Mask) {
-    let k = Intrinsics {
-        fx: 160.0,
-        fy: 160.0,
-        cx: 79.5,
-        cy: 99.5,
-        width: 160,
-        height: 200,
-    };
-    let cam = FrameCamera {
-        color: k,
-        depth: None,
-        depth_size: (160, 200),
-        pose: look_at_pose(eye, at, Vector3::z()),
-        align: Matrix4::identity(),
-    };
-    let (color, depth, _) = render_coloured(&cam, parts, 0);
-    let mut lamp = Mask::new(160, 200);
-    for part in 1..=last {
-        let (_, _, m) = render_coloured(&cam, parts, part);
-        for (o, &v) in lamp.data.iter_mut().zip(&m.data) {
-            *o |= v;
+/// A 160 x 200 view (focal length 160 pixels) of rendered parts: colour, depth, the
+/// camera, and the object's mask.
+struct Rendered {
+    color: RgbImage,
+    depth: DepthMap,
+    cam: FrameCamera,
+    object: Mask,
+}
+
+impl Rendered {
+    /// The view from `eye` towards `at` of `parts`; the object is parts 1..=`last`.
+    fn new(parts: &[Part], eye: Point3<f64>, at: Point3<f64>, last: usize) -> Self {
+        let k = Intrinsics {
+            fx: 160.0,
+            fy: 160.0,
+            cx: 79.5,
+            cy: 99.5,
+            width: 160,
+            height: 200,
+        };
+        let cam = FrameCamera {
+            color: k,
+            depth: None,
+            depth_size: (160, 200),
+            pose: look_at_pose(eye, at, Vector3::z()),
+            align: Matrix4::identity(),
+        };
+        let (color, depth, _) = render_coloured(&cam, parts, 0);
+        let mut object = Mask::new(160, 200);
+        for part in 1..=last {
+            let (_, _, m) = render_coloured(&cam, parts, part);
+            for (o, &v) in object.data.iter_mut().zip(&m.data) {
+                *o |= v;
+            }
+        }
+        Self {
+            color,
+            depth,
+            cam,
+            object,
         }
     }
-    (color, depth, cam, lamp)
+
+    /// The object's box in the image.
+    fn bbox(&self) -> [f32; 4] {
+        mask_box(&self.object)
+    }
+
+    /// The mask the segmenter with options `spec` ("" for the defaults) gives for the
+    /// object's box.
+    fn segment(&self, spec: &str) -> Mask {
+        let input = SegmentInput {
+            color: &self.color,
+            depth: &self.depth,
+            camera: &self.cam,
+        };
+        let seg = DepthSegmenter::from_spec(spec).expect("a valid spec");
+        seg.segment(&input, self.bbox()).expect("a mask")
+    }
+
+    /// The share of mask `m` that lies on the object.
+    fn share_on(&self, m: &Mask) -> f64 {
+        let both = m
+            .data
+            .iter()
+            .zip(&self.object.data)
+            .filter(|(a, b)| **a && **b);
+        both.count() as f64 / m.count().max(1) as f64
+    }
 }
 
 #[test]
@@ -59,23 +96,12 @@ fn a_floor_lamps_shade_pole_and_foot_are_one_mask_before_the_plant_behind() {
     let wall = ([5.0, -3.0, 0.0], [5.1, 3.0, 3.0], [170, 170, 170]);
     let parts = [floor, foot, pole, shade, plant, wall];
     let (eye, at) = (Point3::new(0.0, 0.0, 1.0), Point3::new(2.2, 0.0, 0.8));
-    let (color, depth, cam, lamp) = parts_view(&parts, eye, at, 3);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&lamp);
-    let grouped = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(
-        grouped.iou(&lamp) > 0.7,
-        "IoU {} (box {bbox:?})",
-        grouped.iou(&lamp)
-    );
+    let v = Rendered::new(&parts, eye, at, 3);
+    let grouped = v.segment("").iou(&v.object);
+    assert!(grouped > 0.7, "IoU {grouped} (box {:?})", v.bbox());
     // One surface at a time, the plant behind fills more of the box than the shade.
-    let alone = DepthSegmenter::from_spec("groups=off").unwrap();
-    let m = alone.segment(&input, bbox).unwrap();
-    assert!(m.iou(&lamp) < 0.5, "IoU {} without groups", m.iou(&lamp));
+    let alone = v.segment("groups=off").iou(&v.object);
+    assert!(alone < 0.5, "IoU {alone} without groups");
 }
 
 #[test]
@@ -90,25 +116,12 @@ fn a_floor_lamp_before_a_wall_is_not_the_wall_behind_its_pole() {
     let wall = ([1.6, -3.0, 0.0], [1.7, 3.0, 3.0], [170, 170, 170]);
     let parts = [floor, foot, pole, wall];
     let (eye, at) = (Point3::new(0.3, -0.6, 1.5), Point3::new(1.0, 0.0, 0.6));
-    let (color, depth, cam, lamp) = parts_view(&parts, eye, at, 2);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&lamp);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(m.iou(&lamp) > 0.8, "IoU {} (box {bbox:?})", m.iou(&lamp));
+    let v = Rendered::new(&parts, eye, at, 2);
+    let iou = v.segment("").iou(&v.object);
+    assert!(iou > 0.8, "IoU {iou} (box {:?})", v.bbox());
     // From the strong modes alone, the wall explains the box best.
-    let strong = DepthSegmenter::from_spec("weak=off").unwrap();
-    let m = strong.segment(&input, bbox).unwrap();
-    assert!(m.iou(&lamp) < 0.3, "IoU {} with weak=off", m.iou(&lamp));
-}
-
-/// The share of mask `m` that lies on `object`.
-fn share_on(object: &Mask, m: &Mask) -> f64 {
-    let both = m.data.iter().zip(&object.data).filter(|(a, b)| **a && **b);
-    both.count() as f64 / m.count().max(1) as f64
+    let strong = v.segment("weak=off").iou(&v.object);
+    assert!(strong < 0.3, "IoU {strong} with weak=off");
 }
 
 #[test]
@@ -128,31 +141,19 @@ fn a_chairs_back_above_the_table_before_it_is_not_the_table_top() {
         floor, seat, back, legs[0], legs[1], legs[2], legs[3], top, wall,
     ];
     let (eye, at) = (Point3::new(0.6, -0.2, 1.4), Point3::new(2.4, 0.3, 0.5));
-    let (color, depth, cam, chair) = parts_view(&parts, eye, at, 6);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&chair);
-    let on_chair = |m: &Mask| share_on(&chair, m);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
+    let v = Rendered::new(&parts, eye, at, 6);
+    let m = v.segment("");
+    let (on, iou) = (v.share_on(&m), m.iou(&v.object));
     assert!(
-        on_chair(&m) > 0.9 && m.iou(&chair) > 0.3,
-        "on the chair {}, IoU {} (box {bbox:?})",
-        on_chair(&m),
-        m.iou(&chair)
+        on > 0.9 && iou > 0.3,
+        "on the chair {on}, IoU {iou} (box {:?})",
+        v.bbox()
     );
     // The mask is the back (the seat and legs below the table are another surface, and
     // other views complete the box). Without the preference the table top explains the
     // box best.
-    let m = DepthSegmenter::from_spec("within=off").unwrap();
-    let m = m.segment(&input, bbox).unwrap();
-    assert!(
-        on_chair(&m) < 0.3,
-        "on the chair {} with within=off",
-        on_chair(&m)
-    );
+    let on = v.share_on(&v.segment("within=off"));
+    assert!(on < 0.3, "on the chair {on} with within=off");
 }
 
 #[test]
@@ -169,20 +170,9 @@ fn a_chair_before_a_desk_against_the_wall_does_not_replace_the_desk() {
     let back = ([2.15, y0, 0.46], [2.2, y1, 0.95], [40, 40, 45]);
     let parts = [floor, desk, seat, back, wall];
     let (eye, at) = (Point3::new(0.4, -0.3, 1.5), Point3::new(2.9, 0.0, 0.5));
-    let (color, depth, cam, desk) = parts_view(&parts, eye, at, 1);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&desk);
-    let on_desk = |m: &Mask| share_on(&desk, m);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    assert!(
-        on_desk(&m) > 0.8,
-        "on the desk {} (box {bbox:?})",
-        on_desk(&m)
-    );
+    let v = Rendered::new(&parts, eye, at, 1);
+    let on = v.share_on(&v.segment(""));
+    assert!(on > 0.8, "on the desk {on} (box {:?})", v.bbox());
 }
 
 #[test]
@@ -197,16 +187,11 @@ fn a_plants_pot_of_another_colour_below_its_foliage_is_part_of_it() {
     let parts = [floor, pot, crown, wall];
     // A level camera 1.1 m up: the fronts of crown and pot at one depth.
     let (eye, at) = (Point3::new(0.0, 0.0, 1.1), Point3::new(2.1, 0.0, 1.1));
-    let (color, depth, cam, plant) = parts_view(&parts, eye, at, 2);
-    let input = SegmentInput {
-        color: &color,
-        depth: &depth,
-        camera: &cam,
-    };
-    let bbox = mask_box(&plant);
-    let m = DepthSegmenter::default().segment(&input, bbox).unwrap();
-    let (_, _, _, pot_only) = parts_view(&parts, eye, at, 1);
-    assert!(m.iou(&plant) > 0.8, "IoU {} (box {bbox:?})", m.iou(&plant));
+    let v = Rendered::new(&parts, eye, at, 2);
+    let m = v.segment("");
+    let pot_only = Rendered::new(&parts, eye, at, 1).object;
+    let iou = m.iou(&v.object);
+    assert!(iou > 0.8, "IoU {iou} (box {:?})", v.bbox());
     let pot_kept = pot_only
         .data
         .iter()
