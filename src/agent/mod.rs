@@ -50,6 +50,9 @@ pub struct AgentParams {
     pub max_retries: usize,
     /// Score a cached detection needs to pre-select its frame.
     pub preselect_score: f32,
+    /// Also offer the frames that see, by depth and pose, an object the detector found in
+    /// another frame (`geometry::reseen`; the paper offers only frames with a detection).
+    pub preselect_reseen: bool,
     /// Frames shown when pre-selection finds nothing (evenly sampled usable frames).
     pub fallback_frames: usize,
     /// Share of valid depth pixels a frame's detection of the target class needs for the
@@ -82,6 +85,7 @@ impl Default for AgentParams {
             image_limit: 6,
             max_retries: 3,
             preselect_score: 0.2,
+            preselect_reseen: true,
             fallback_frames: 48,
             min_depth_fraction: 0.2,
             good_depth_fraction: 0.2,

@@ -1,14 +1,18 @@
 //! Stage 2: view pre-selection from the scene's cached detections. A usable frame is
-//! offered when it holds a detection of the target class above the score threshold; when
+//! offered when it holds a detection of the target class above the score threshold, or
+//! (ours) when it sees by depth and pose what such a detection shows in another frame; when
 //! the detector cannot see the class or finds nothing, evenly sampled usable frames are
 //! offered instead, and the trace says why.
 
 use serde_json::json;
 use std::time::Instant;
 
+use std::collections::BTreeMap;
+
 use super::{step, VlmGrounder};
-use crate::geometry::{LayoutParams, RoomLayout};
+use crate::geometry::{reseen, GeometryParams, LayoutParams, RoomLayout};
 use crate::jobs::{JobContext, JobFailure};
+use crate::vision::Detection;
 use crate::vlm::json::QueryAnalysis;
 
 /// The frames offered to the VLM.
@@ -115,6 +119,7 @@ pub async fn run(
     let class = g.detector.can_see(&analysis.target_class);
     let mut no_depth: Vec<usize> = Vec::new();
     let mut depth_tier: Option<f64> = None;
+    let mut reseen: Vec<usize> = Vec::new();
     let (frames, fallback) = match &class {
         None => (
             evenly_sampled(&usable, g.params.fallback_frames),
@@ -129,9 +134,8 @@ pub async fn run(
                 .detections(&ctx.scene.id, &g.detector_key)
                 .await
                 .map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
-            let is_hit = |d: &crate::vision::Detection| {
-                same_class(&d.label, c) && d.score > g.params.preselect_score
-            };
+            let is_hit =
+                |d: &Detection| same_class(&d.label, c) && d.score > g.params.preselect_score;
             let hits: Vec<usize> = usable
                 .iter()
                 .copied()
@@ -173,7 +177,13 @@ pub async fn run(
                 );
                 no_depth = dropped;
                 depth_tier = tier;
-                (keep, None)
+                if g.params.preselect_reseen {
+                    reseen = reseen_frames(ctx, &dets, &hits, &is_hit, &g.params.geometry);
+                }
+                let mut frames = keep;
+                frames.extend(&reseen);
+                frames.sort_unstable();
+                (frames, None)
             }
         }
     };
@@ -182,7 +192,7 @@ pub async fn run(
         ctx,
         "preselection",
         json!({"target_class": analysis.target_class, "usable_frames": usable.len()}),
-        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "depth_fraction_required": depth_tier, "room_layout": layout}),
+        json!({"detector_class": class, "image_ids": image_ids, "frames": names, "fallback": fallback, "dropped_without_depth": no_depth.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "depth_fraction_required": depth_tier, "reseen": reseen.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "room_layout": layout}),
         t,
     )
     .await;
@@ -192,6 +202,40 @@ pub async fn run(
         fallback,
         round: 0,
     })
+}
+
+/// The usable frames without a detection of the class (`is_hit`) that see, by depth and
+/// pose, what one of the detections in the `hits` frames shows (`geometry::reseen`): the
+/// detector missed the object there. Ascending.
+fn reseen_frames(
+    ctx: &JobContext,
+    dets: &BTreeMap<usize, Vec<Detection>>,
+    hits: &[usize],
+    is_hit: &dyn Fn(&Detection) -> bool,
+    params: &GeometryParams,
+) -> Vec<usize> {
+    let frames = &ctx.scene.frames;
+    let probes: Vec<reseen::Probe> = hits
+        .iter()
+        .flat_map(|i| {
+            let f = &frames[*i];
+            dets.get(i)
+                .into_iter()
+                .flatten()
+                .filter(|d| is_hit(d))
+                .filter_map(|d| reseen::box_probe(&f.camera, &f.depth, d.bbox))
+        })
+        .collect();
+    ctx.scene
+        .usable_frames()
+        .filter(|f| !hits.contains(&f.idx))
+        .filter(|f| {
+            probes
+                .iter()
+                .any(|p| reseen::sees_probe(p, &f.camera, &f.depth, params))
+        })
+        .map(|f| f.idx)
+        .collect()
 }
 
 /// The frames to offer given each frame's best depth fraction of a target detection

@@ -37,6 +37,7 @@ impl Method {
         g.round_back.enabled = false;
         agent.good_depth_fraction = agent.min_depth_fraction;
         agent.candidates.enabled = false;
+        agent.preselect_reseen = false;
     }
 }
 
@@ -58,7 +59,7 @@ mod tests {
         assert!(!g.consensus.anchor_box_bound);
         assert!(!g.depth_fill.enabled && !g.layout.enabled && !g.support.enabled);
         assert!(!g.round_back.enabled);
-        assert!(!a.candidates.enabled);
+        assert!(!a.candidates.enabled && !a.preselect_reseen);
         // The paper's own settings stay as they are.
         assert_eq!((g.erode_kernel, g.keep_components, g.max_views), (15, 2, 7));
         assert_eq!((g.sor_neighbors, g.sor_std_ratio), (5, 1.0));

@@ -11,6 +11,8 @@
 //! → [`round_back::round_back`] (a round body seen from one side given its hidden back; ours).
 //! Before segmenting, [`fill_depth`] completes the chosen view's missing depth from the other
 //! frames and, for flat objects no frame measured, from the room's box ([`estimate_room`]).
+//! Pre-selection also offers the frames that see what a detection shows elsewhere
+//! ([`reseen`]; ours).
 
 pub mod bound;
 pub mod boxes;
@@ -31,6 +33,7 @@ pub mod params;
 pub mod partial;
 pub mod planar;
 pub mod projection;
+pub mod reseen;
 pub mod round_back;
 pub mod sightline;
 pub mod support;

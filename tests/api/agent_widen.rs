@@ -114,3 +114,61 @@ async fn none_after_widening_ends_target_not_found() {
     assert_eq!(sel.len(), 2);
     assert!(sel.iter().all(|s| s["outputs"]["none"] == true), "{sel:#?}");
 }
+
+/// The cached detections keep `class` only in frame `kept` (the detector missed it
+/// everywhere else).
+async fn detections_kept_only_in(f: &Fixture, class: &str, kept: usize) {
+    for (&i, d) in &f.dets {
+        let d: Vec<_> = d
+            .iter()
+            .filter(|d| d.label != class || i == kept)
+            .cloned()
+            .collect();
+        f.store
+            .put_detections(&f.scene_id, "oracle", i, &d)
+            .await
+            .unwrap();
+    }
+}
+
+#[tokio::test]
+async fn frames_that_see_what_a_detection_shows_are_offered_though_the_detector_missed_it_there() {
+    for reseen in [true, false] {
+        let f = Fixture::start_with_config(5_000, "oracle", |c| {
+            c.agent.preselect_reseen = reseen;
+        })
+        .await;
+        let (class, good) = class_with_single(&f);
+        // The frames that show an object of the class (the oracle detector's cache).
+        let showing: Vec<String> = f
+            .offered(&class)
+            .iter()
+            .map(|i| format!("{i:05}"))
+            .collect();
+        detections_kept_only_in(&f, &class, good).await;
+        f.vlm
+            .script_push(vec![analysis(&class), pick_image(good as u32)]);
+        let job = f.run_job(QUERY).await;
+        let pre = steps(&job, "preselection");
+        let offered = image_ids(pre[0]);
+        let again: Vec<String> = pre[0]["outputs"]["reseen"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{:#}", pre[0]))
+            .iter()
+            .map(|v| v.as_str().unwrap_or_default().to_string())
+            .collect();
+        assert!(offered.contains(&format!("{good:05}")), "{offered:?}");
+        if reseen {
+            assert!(!again.is_empty(), "{:#}", pre[0]);
+            assert!(
+                again
+                    .iter()
+                    .all(|i| offered.contains(i) && showing.contains(i)),
+                "offered again {again:?}, frames showing the class {showing:?}"
+            );
+        } else {
+            assert_eq!(offered, vec![format!("{good:05}")]);
+            assert!(again.is_empty(), "{:#}", pre[0]);
+        }
+    }
+}
