@@ -7,11 +7,10 @@
 use serde_json::json;
 use std::time::Instant;
 
-use std::collections::BTreeMap;
-
 use super::{step, VlmGrounder};
 use crate::geometry::{reseen, GeometryParams, LayoutParams, RoomLayout};
 use crate::jobs::{JobContext, JobFailure};
+use crate::scene::SceneData;
 use crate::vision::Detection;
 use crate::vlm::json::QueryAnalysis;
 
@@ -178,7 +177,21 @@ pub async fn run(
                 no_depth = dropped;
                 depth_tier = tier;
                 if g.params.preselect_reseen {
-                    reseen = reseen_frames(ctx, &dets, &hits, &is_hit, &g.params.geometry);
+                    // The detections that stand for an object: their frames and boxes.
+                    let found: Vec<(usize, [f32; 4])> = hits
+                        .iter()
+                        .flat_map(|i| {
+                            let d = dets.get(i).into_iter().flatten().filter(|d| is_hit(d));
+                            d.map(|d| (*i, d.bbox))
+                        })
+                        .collect();
+                    let (scene, params) = (ctx.scene.clone(), g.params.geometry.clone());
+                    reseen =
+                        tokio::task::spawn_blocking(move || reseen_frames(&scene, &found, &params))
+                            .await
+                            .map_err(|e| {
+                                JobFailure::new("internal", format!("pre-selection failed: {e}"))
+                            })?;
                 }
                 let mut frames = keep;
                 frames.extend(&reseen);
@@ -204,31 +217,24 @@ pub async fn run(
     })
 }
 
-/// The usable frames without a detection of the class (`is_hit`) that see, by depth and
-/// pose, what one of the detections in the `hits` frames shows (`geometry::reseen`): the
-/// detector missed the object there. Ascending.
+/// The usable frames without one of the detections `found` (frame, box) that see, by depth
+/// and pose, what one of them shows (`geometry::reseen`): the detector missed the object
+/// there. Ascending.
 fn reseen_frames(
-    ctx: &JobContext,
-    dets: &BTreeMap<usize, Vec<Detection>>,
-    hits: &[usize],
-    is_hit: &dyn Fn(&Detection) -> bool,
+    scene: &SceneData,
+    found: &[(usize, [f32; 4])],
     params: &GeometryParams,
 ) -> Vec<usize> {
-    let frames = &ctx.scene.frames;
-    let probes: Vec<reseen::Probe> = hits
+    let probes: Vec<reseen::Probe> = found
         .iter()
-        .flat_map(|i| {
-            let f = &frames[*i];
-            dets.get(i)
-                .into_iter()
-                .flatten()
-                .filter(|d| is_hit(d))
-                .filter_map(|d| reseen::box_probe(&f.camera, &f.depth, d.bbox))
+        .filter_map(|(i, b)| {
+            let f = scene.frames.get(*i)?;
+            reseen::box_probe(&f.camera, &f.depth, *b)
         })
         .collect();
-    ctx.scene
+    scene
         .usable_frames()
-        .filter(|f| !hits.contains(&f.idx))
+        .filter(|f| !found.iter().any(|(i, _)| *i == f.idx))
         .filter(|f| {
             probes
                 .iter()
