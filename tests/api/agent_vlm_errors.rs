@@ -162,3 +162,47 @@ async fn query_analysis_feedback_sends_only_the_last_round_with_its_cap() {
     assert_eq!(reqs[0]["max_tokens"], 512, "query analysis cap");
     assert_eq!(reqs[3]["max_tokens"], 1024, "image selection cap");
 }
+
+/// The VLM client refuses a request with more images than `max_images_per_request`. A
+/// conversation that showed the marks and then asks for a box holds the grids and two more
+/// images; at a limit of the grids and one, the marks image is left out of the box request
+/// (a line says so) and the job goes on.
+#[tokio::test]
+async fn a_conversation_over_the_image_limit_leaves_out_its_oldest_images_and_goes_on() {
+    let f = Fixture::start_with_config(5_000, "centernet", |c| {
+        c.agent.candidates.enabled = true;
+        c.agent.image_limit = 1;
+        if let Some(v) = c.vlm.as_mut() {
+            v.max_images_per_request = 2;
+        }
+    })
+    .await;
+    f.vlm.script_push(vec![
+        analysis("whiteboard"),
+        pick_image("00000"),
+        Reply::ok(serde_json::json!({"reasoning": "no outline", "object_id": null}).to_string()),
+        Reply::ok(
+            serde_json::json!({"reasoning": "left of the door", "bbox_2d": [2, 2, 30, 30]})
+                .to_string(),
+        ),
+    ]);
+    let job = f.run_job(QUERY).await;
+    let grids = steps(&job, "stitching")
+        .first()
+        .and_then(|s| s["outputs"]["grids"].as_array().map(Vec::len));
+    assert_eq!(grids, Some(1), "one grid at image_limit 1: {job:#}");
+    assert_eq!(job["status"], "succeeded", "{job:#}");
+    assert_eq!(
+        job["result"]["box_source"], "vlm_box",
+        "{:#}",
+        job["result"]
+    );
+    let reqs = f.vlm.requests();
+    assert_eq!(reqs.len(), 4, "analysis, image, marks, box");
+    let msgs = reqs[3]["messages"].as_array().cloned().unwrap_or_default();
+    let images: usize = msgs.iter().map(crate::fake_vlm::images_in).sum();
+    assert_eq!(images, 2, "the grid and the box request's image");
+    let history = reqs[3]["messages"].to_string();
+    assert!(history.contains("Task: mark selection"), "{history}");
+    assert!(history.contains("is left out here"), "{history}");
+}
