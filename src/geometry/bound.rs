@@ -47,11 +47,8 @@ pub fn view_bound<'a>(
     if !c.anchor_box_bound || partial.occluded >= rule.min_occluded {
         return None;
     }
-    let b = bbox.map(f64::from);
+    let b = proper_box(bbox)?;
     let (bw, bh) = (b[2] - b[0], b[3] - b[1]);
-    if !(bw > 0.0 && bh > 0.0) || b.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
     let (w, h) = (
         f64::from(camera.color.width),
         f64::from(camera.color.height),
@@ -71,6 +68,12 @@ pub fn view_bound<'a>(
         bbox: [b[0] - mx, b[1] - my, b[2] + mx, b[3] + my],
         open: b[0] <= edge || b[1] <= edge || b[2] >= w - edge || b[3] >= h - edge,
     })
+}
+
+/// A box (pixels) in f64, if its numbers are finite and it has an area.
+pub fn proper_box(bbox: [f32; 4]) -> Option<[f64; 4]> {
+    let b = bbox.map(f64::from);
+    (b.iter().all(|v| v.is_finite()) && b[2] > b[0] && b[3] > b[1]).then_some(b)
 }
 
 /// `points` less those that project outside `bound`: into the image outside the box, or

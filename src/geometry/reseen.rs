@@ -44,11 +44,8 @@ const MAX_REACH: f64 = 1.0;
 /// central half that lie within `LAYER` of their median depth. `None` when too few
 /// readings lie there.
 pub fn box_probe(camera: &FrameCamera, depth: &DepthMap, bbox: [f32; 4]) -> Option<Probe> {
-    let b = bbox.map(f64::from);
+    let b = super::bound::proper_box(bbox)?;
     let (w, h) = (b[2] - b[0], b[3] - b[1]);
-    if !(w > 0.0 && h > 0.0) || b.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
     let (iw, ih) = (
         f64::from(camera.color.width),
         f64::from(camera.color.height),
