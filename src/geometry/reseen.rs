@@ -44,6 +44,7 @@ const MAX_REACH: f64 = 1.0;
 /// central half that lie within `LAYER` of their median depth. `None` when too few
 /// readings lie there.
 pub fn box_probe(camera: &FrameCamera, depth: &DepthMap, bbox: [f32; 4]) -> Option<Probe> {
+    camera.check_depth(depth).ok()?;
     let b = super::bound::proper_box(bbox)?;
     let (w, h) = (b[2] - b[0], b[3] - b[1]);
     let (iw, ih) = (
