@@ -76,6 +76,14 @@ pub fn proper_box(bbox: [f32; 4]) -> Option<[f64; 4]> {
     (b.iter().all(|v| v.is_finite()) && b[2] > b[0] && b[3] > b[1]).then_some(b)
 }
 
+/// Pixel points of an `n` x `n` lattice over the centred `inner` share of box `b`'s width
+/// and height (cell centres), row by row.
+pub fn box_lattice(b: [f64; 4], n: usize, inner: f64) -> impl Iterator<Item = (f64, f64)> {
+    let (w, h) = (b[2] - b[0], b[3] - b[1]);
+    let at = move |k: usize| (1.0 - inner) / 2.0 + inner * (k as f64 + 0.5) / n as f64;
+    (0..n).flat_map(move |j| (0..n).map(move |i| (b[0] + at(i) * w, b[1] + at(j) * h)))
+}
+
 /// `points` less those that project outside `bound`: into the image outside the box, or
 /// outside the image when the bound is not `open`. A point behind the camera is kept (the
 /// bound does not speak for it), and so is every point when the pose is unusable.

@@ -51,20 +51,10 @@ pub fn box_probe(camera: &FrameCamera, depth: &DepthMap, bbox: [f32; 4]) -> Opti
         f64::from(camera.color.width),
         f64::from(camera.color.height),
     );
-    let mut samples: Vec<(f64, f64, f64)> = Vec::with_capacity(GRID * GRID);
-    for j in 0..GRID {
-        for i in 0..GRID {
-            let fx = (1.0 - INNER) / 2.0 + INNER * (i as f64 + 0.5) / GRID as f64;
-            let fy = (1.0 - INNER) / 2.0 + INNER * (j as f64 + 0.5) / GRID as f64;
-            let (u, v) = (b[0] + w * fx, b[1] + h * fy);
-            if !(0.0..iw).contains(&u) || !(0.0..ih).contains(&v) {
-                continue;
-            }
-            if let Some(z) = camera.depth_at_color(depth, u, v) {
-                samples.push((u, v, z));
-            }
-        }
-    }
+    let samples: Vec<(f64, f64, f64)> = super::bound::box_lattice(b, GRID, INNER)
+        .filter(|(u, v)| (0.0..iw).contains(u) && (0.0..ih).contains(v))
+        .filter_map(|(u, v)| Some((u, v, camera.depth_at_color(depth, u, v)?)))
+        .collect();
     if samples.len() < MIN_POINTS {
         return None;
     }

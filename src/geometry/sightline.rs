@@ -57,20 +57,14 @@ struct Ray {
 fn rays(camera: &FrameCamera, bbox: [f32; 4], room: Option<&RoomLayout>) -> Vec<Ray> {
     let m = camera.cam_to_out();
     let o = camera.centre();
-    let [x1, y1, x2, y2] = bbox.map(f64::from);
-    let (w, h) = (x2 - x1, y2 - y1);
-    let mut out = Vec::with_capacity(RAYS * RAYS);
-    for j in 0..RAYS {
-        for i in 0..RAYS {
-            let fu = (1.0 - INNER) / 2.0 + INNER * (i as f64 + 0.5) / RAYS as f64;
-            let fv = (1.0 - INNER) / 2.0 + INNER * (j as f64 + 0.5) / RAYS as f64;
-            let p = transform_point(&m, &camera.color.unproject(x1 + fu * w, y1 + fv * h, 1.0));
+    super::bound::box_lattice(bbox.map(f64::from), RAYS, INNER)
+        .map(|(u, v)| {
+            let p = transform_point(&m, &camera.color.unproject(u, v, 1.0));
             let d = p - o;
             let far = room.and_then(|r| r.exit(&o, &d)).unwrap_or(FAR).min(FAR);
-            out.push(Ray { o, d, far });
-        }
-    }
-    out
+            Ray { o, d, far }
+        })
+        .collect()
 }
 
 /// Camera depth of the first point along `ray` that `frame` measures, if any: where the
