@@ -11,7 +11,6 @@ use super::{step, VlmGrounder};
 use crate::geometry::{reseen, GeometryParams, LayoutParams, RoomLayout};
 use crate::jobs::{JobContext, JobFailure};
 use crate::scene::SceneData;
-use crate::vision::Detection;
 use crate::vlm::json::QueryAnalysis;
 
 /// The frames offered to the VLM.
@@ -133,13 +132,21 @@ pub async fn run(
                 .detections(&ctx.scene.id, &g.detector_key)
                 .await
                 .map_err(|e| JobFailure::new("storage_error", e.to_string()))?;
-            let is_hit =
-                |d: &Detection| same_class(&d.label, c) && d.score > g.params.preselect_score;
-            let hits: Vec<usize> = usable
+            // The target class's detections above the score, per usable frame that has
+            // any: the frames they are in and their boxes serve every rule below.
+            let found: Vec<(usize, Vec<[f32; 4]>)> = usable
                 .iter()
-                .copied()
-                .filter(|i| dets.get(i).is_some_and(|d| d.iter().any(is_hit)))
+                .filter_map(|i| {
+                    let boxes: Vec<[f32; 4]> = dets
+                        .get(i)?
+                        .iter()
+                        .filter(|d| same_class(&d.label, c) && d.score > g.params.preselect_score)
+                        .map(|d| d.bbox)
+                        .collect();
+                    (!boxes.is_empty()).then_some((*i, boxes))
+                })
                 .collect();
+            let hits: Vec<usize> = found.iter().map(|(i, _)| *i).collect();
             if hits.is_empty() {
                 (
                     evenly_sampled(&usable, g.params.fallback_frames),
@@ -154,18 +161,14 @@ pub async fn run(
                 // it is mostly unread gives a poor one. Offered: the frames with a
                 // well-measured detection if there are any, else those with some depth,
                 // else all.
-                let best: Vec<f64> = hits
+                let best: Vec<f64> = found
                     .iter()
-                    .map(|i| {
+                    .map(|(i, boxes)| {
                         let f = &ctx.scene.frames[*i];
-                        dets.get(i).map_or(0.0, |d| {
-                            d.iter()
-                                .filter(|d| is_hit(d))
-                                .map(|d| {
-                                    depth_fraction(f, d.bbox, layout, &g.params.geometry.layout)
-                                })
-                                .fold(0.0, f64::max)
-                        })
+                        boxes
+                            .iter()
+                            .map(|b| depth_fraction(f, *b, layout, &g.params.geometry.layout))
+                            .fold(0.0, f64::max)
                     })
                     .collect();
                 let (keep, dropped, tier) = split_by_depth(
@@ -177,14 +180,6 @@ pub async fn run(
                 no_depth = dropped;
                 depth_tier = tier;
                 if g.params.preselect_reseen {
-                    // The detections that stand for an object: their frames and boxes.
-                    let found: Vec<(usize, [f32; 4])> = hits
-                        .iter()
-                        .flat_map(|i| {
-                            let d = dets.get(i).into_iter().flatten().filter(|d| is_hit(d));
-                            d.map(|d| (*i, d.bbox))
-                        })
-                        .collect();
                     let (scene, params) = (ctx.scene.clone(), g.params.geometry.clone());
                     reseen =
                         tokio::task::spawn_blocking(move || reseen_frames(&scene, &found, &params))
@@ -217,19 +212,21 @@ pub async fn run(
     })
 }
 
-/// The usable frames without one of the detections `found` (frame, box) that see, by depth
+/// The usable frames without one of the detections `found` (frame, its boxes) that see, by depth
 /// and pose, what one of them shows (`geometry::reseen`): the detector missed the object
 /// there. Ascending.
 fn reseen_frames(
     scene: &SceneData,
-    found: &[(usize, [f32; 4])],
+    found: &[(usize, Vec<[f32; 4]>)],
     params: &GeometryParams,
 ) -> Vec<usize> {
     let probes: Vec<reseen::Probe> = found
         .iter()
-        .filter_map(|(i, b)| {
-            let f = scene.frames.get(*i)?;
-            reseen::box_probe(&f.camera, &f.depth, *b)
+        .filter_map(|(i, boxes)| Some((scene.frames.get(*i)?, boxes)))
+        .flat_map(|(f, boxes)| {
+            boxes
+                .iter()
+                .filter_map(|b| reseen::box_probe(&f.camera, &f.depth, *b))
         })
         .collect();
     scene
