@@ -20,9 +20,13 @@
 //! there may be the object itself), (3) spread over at least
 //! `min_spread` along both of them (so a wall seen below a picture, which is a line in a
 //! horizontal slice, is not a floor), and (4) cover at least `min_coverage` of the ring of
-//! width `margin` around the box's footprint with occupied voxels (the object hides its own
+//! width `margin` around the box's footprint, less its inner band of width `rim` (the
+//! object's own silhouette), with occupied voxels (the object hides its own
 //! footprint on the support; a slice through four chair legs lies inside the footprint and
 //! covers none of the ring). The nearest such layer wins; the face moves to its median coordinate.
+//! When both side faces of one axis fall back onto one surface (medians within a layer)
+//! with the object's median between them, the surface runs through the object and is its
+//! own: neither face moves.
 
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
@@ -81,6 +85,13 @@ pub struct SupportParams {
     /// Share of the ring (width `margin`) around the box's footprint that the layer's
     /// occupied voxels must cover.
     pub min_coverage: f64,
+    /// Width (m) of the band right around the footprint whose points do not count toward
+    /// that coverage (the band is left out of the ring too): the object's own silhouette
+    /// lies there, outside its mask by the clearance and the erosion. Seen from above or
+    /// in front, that rim is a ring or a frame of points at one height or depth (a vase's
+    /// belly, a monitor's screen), a layer hugging the footprint; a floor, table top or
+    /// wall reaches out across the ring.
+    pub rim: f64,
     /// Voxel (m) for the context cloud; also the unit of `min_points`.
     pub voxel: f64,
     /// Occupied voxels a layer needs.
@@ -188,6 +199,7 @@ impl Default for SupportParams {
             margin: 0.1,
             min_spread: 0.1,
             min_coverage: 0.15,
+            rim: 0.02,
             voxel: 0.02,
             min_points: 12,
             layer_peak: 2.0,
@@ -357,16 +369,6 @@ pub fn observed_free_fraction(
     free.iter().filter(|&&f| f).count() as f64 / samples.len().max(1) as f64
 }
 
-/// Move each face of `b` (bottom and the four vertical ones) onto the support found beyond
-/// it in `context` (points around the object, not on it), or pull it back onto a support
-/// up to `max_inside` within the box (noise behind a wall). A support must lie on the
-/// face's side of `bulk` (the object's per-axis median point, see [`median_point`]): the
-/// wall behind a thin picture is inside its noisy box, and only the back face may move
-/// onto it. A vertical face moves out by more than `layer` (up to `max_gap_side`, and
-/// further up to `max_gap_far`) only when the gap it crosses was never seen empty by the
-/// frames in `views`. With
-/// `down` false (an object that hangs on a wall) the bottom face stays. Returns the new box
-/// and the faces that moved.
 /// Do measured points inside the footprint of `b` (x, y) run from the support at height
 /// `floor` up to the box's bottom with no vertical break longer than `column_break`?
 fn column_joins(b: &Aabb, context: &[Point3<f64>], floor: f64, p: &SupportParams) -> bool {
@@ -391,6 +393,15 @@ fn column_joins(b: &Aabb, context: &[Point3<f64>], floor: f64, p: &SupportParams
     true
 }
 
+/// Move each face of `b` (bottom and the four vertical ones) onto the support found beyond
+/// it in `context` (points around the object, not on it), or pull it back onto a support
+/// up to `max_inside` within the box (noise behind a wall). A support must lie on the
+/// face's side of `bulk` (the object's per-axis median point, see [`median_point`]): the
+/// wall behind a thin picture is inside its noisy box, and only the back face may move
+/// onto it. A vertical face moves out by more than `layer` (up to `max_gap_side`,
+/// and further up to `max_gap_far`) only when the gap it crosses was never seen empty by
+/// the frames in `views`. With `down` false (an object that hangs on a wall) the bottom
+/// face stays. Returns the new box and the faces that moved.
 pub fn extend_to_support(
     b: &Aabb,
     bulk: [f64; 3],
@@ -472,6 +483,22 @@ pub fn extend_to_support(
             points,
             seen_empty,
         });
+    }
+    // Both side faces of one axis pulled back onto what is one surface (the two medians
+    // within a layer), with the object's median point between them: that surface runs
+    // through the object, and is the object's own (a monitor's back panel seen around
+    // its mask), not a support it rests against. Neither face moves.
+    for (axis, name) in NAMES.iter().enumerate().take(2) {
+        let inward = |side: &str, sign: f64| {
+            moved
+                .iter()
+                .any(|m| m.axis == *name && m.side == side && sign * (m.to - m.from) > 0.0)
+        };
+        if inward("min", 1.0) && inward("max", -1.0) && out.max[axis] - out.min[axis] < p.layer {
+            out.min[axis] = b.min[axis];
+            out.max[axis] = b.max[axis];
+            moved.retain(|m| m.axis != *name);
+        }
     }
     (out, moved)
 }

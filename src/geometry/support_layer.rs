@@ -110,14 +110,23 @@ fn accept_layer(
         }
     }
     // Coverage of the ring around the box's footprint (the object hides its own footprint
-    // on a wall behind it or a floor below it; a slice through legs lies inside it).
+    // on a wall behind it or a floor below it; a slice through legs lies inside it), less
+    // the band of width `rim` that the object's own silhouette lies in.
+    let rim = p.rim.clamp(0.0, margin);
+    let outside = |q: &Point3<f64>| {
+        others
+            .iter()
+            .map(|&o| (b.min[o] - q[o]).max(q[o] - b.max[o]))
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
     let cell = |v: f64| (v / p.voxel).floor() as i64;
     let cells: HashSet<(i64, i64)> = layer
         .iter()
+        .filter(|(_, q)| outside(q) > rim)
         .map(|(_, q)| (cell(q[others[0]]), cell(q[others[1]])))
         .collect();
     let n = |o: usize, m: f64| ((b.max[o] - b.min[o] + 2.0 * m) / p.voxel).max(0.0);
-    let ring = n(others[0], margin) * n(others[1], margin) - n(others[0], 0.0) * n(others[1], 0.0);
+    let ring = n(others[0], margin) * n(others[1], margin) - n(others[0], rim) * n(others[1], rim);
     if cells.len() < p.min_points || (cells.len() as f64) < p.min_coverage * ring {
         return None;
     }

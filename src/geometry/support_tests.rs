@@ -512,3 +512,58 @@ fn surfaces_running_along_the_axis_are_no_layer_for_a_pillows_sides() {
     let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], true, &off);
     assert!(e.min[0] > 1.67 || e.max[0] < 2.04, "{e:?}");
 }
+
+#[test]
+fn an_objects_own_rim_is_no_support_and_the_table_beyond_it_is() {
+    // A vase seen from above: its points end at its belly (z = 0.90), the widest part,
+    // and the belly's rim just outside the mask lies 0.5-1.8 cm around the footprint at
+    // that height. The table top it stands on (z = 0.75) shows around it.
+    let b = Aabb::new([0.405, 2.265, 0.90], [0.565, 2.425, 1.06]);
+    let mut rim = Vec::new();
+    for d in [0.005, 0.012, 0.018] {
+        for k in 0..=20 {
+            let t = f64::from(k) / 20.0;
+            let (x, y) = (0.405 + 0.16 * t, 2.265 + 0.16 * t);
+            rim.extend([
+                Point3::new(x, 2.265 - d, 0.893),
+                Point3::new(x, 2.425 + d, 0.893),
+                Point3::new(0.405 - d, y, 0.893),
+                Point3::new(0.565 + d, y, 0.893),
+            ]);
+        }
+    }
+    let table = plane(2, 0.75, (0, 0.30, 0.66), (1, 2.16, 2.52), 0.02);
+    let ctx: Vec<_> = rim.iter().chain(&table).copied().collect();
+    let (e, moved) = extend_to_support(&b, b.center(), &ctx, &[], true, &gp());
+    assert!((e.min[2] - 0.75).abs() < 1e-9, "{e:?} {moved:?}");
+    // Counted as support, the rim stops the bottom at the belly.
+    let mut p = gp();
+    p.support.rim = 0.0;
+    let (e, _) = extend_to_support(&b, b.center(), &ctx, &[], true, &p);
+    assert!((e.min[2] - 0.893).abs() < 1e-6, "{e:?}");
+}
+
+#[test]
+fn a_surface_both_side_faces_fall_back_onto_is_the_objects_own() {
+    // A monitor seen from behind: its back panel shows all around its mask, measured from
+    // 2.499 to 2.545 (noise reaching back); its cloud runs 2.454-2.545 (stand and noise)
+    // with the median on the panel. Each side face finds the panel within its reach inside
+    // the box, at 2.517 and 2.522 (each sees a different part of the noise).
+    let b = Aabb::new([2.454, 3.93, 0.93], [2.545, 4.47, 1.24]);
+    let mut panel = plane(0, 2.511, (1, 3.76, 4.64), (2, 0.76, 1.42), 0.01);
+    for (i, q) in panel.iter_mut().enumerate() {
+        q.x += 0.046 * (((i * 7919) % 61) as f64 / 60.0) - 0.012;
+    }
+    let bulk = [2.519, 4.2, 1.08];
+    let (e, moved) = extend_to_support(&b, bulk, &panel, &[], false, &gp());
+    assert_eq!((e.min[0], e.max[0]), (2.454, 2.545), "{moved:?}");
+    assert!(moved.iter().all(|m| m.axis != "x"), "{moved:?}");
+    // Only the back face falls back when the median lies before the panel (the wall
+    // behind a picture, noise beyond it).
+    let bulk = [2.49, 4.2, 1.08];
+    let (e, _) = extend_to_support(&b, bulk, &panel, &[], false, &gp());
+    assert!(
+        e.min[0] == 2.454 && (e.max[0] - 2.522).abs() < 0.002,
+        "{e:?}"
+    );
+}
