@@ -211,7 +211,7 @@ impl Indexer {
         let outcome = tokio::select! {
             r = index_scene(store, jobs, &scene_id, key, det, cands, from) => r,
             _ = lost.cancelled() => {
-                tracing::warn!(scene = %scene_id, "the indexing lease was lost (another replica took the scene over); stopped");
+                tracing::warn!(scene = %scene_id, "the indexing lease was lost (another replica took the scene over, or the scene is being deleted); stopped");
                 return;
             }
         };

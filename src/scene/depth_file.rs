@@ -128,7 +128,9 @@ pub fn open(scene_dir: &Path, key: &DepthKey) -> std::io::Result<Option<Vec<Dept
 
 /// Write the scene's depth file from its stored blobs (in frame order), one frame decoded
 /// at a time, then rename it into place and remove the scene's older depth files. An error
-/// names the frame whose blob does not decode.
+/// names the frame whose blob does not decode. The scene's folder must exist: a missing one
+/// means the scene is being deleted (a load racing the delete must not bring it back), and
+/// gives an [`WriteError::Io`] of kind `NotFound`.
 pub fn write(
     scene_dir: &Path,
     key: &DepthKey,
@@ -138,7 +140,12 @@ pub fn write(
     let path = scene_dir.join(&name);
     let tmp = scene_dir.join(format!(".{name}.{}.tmp", uuid::Uuid::now_v7()));
     let result = (|| {
-        std::fs::create_dir_all(scene_dir)?;
+        if !scene_dir.is_dir() {
+            return Err(WriteError::Io(std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!("the scene's folder {} is gone", scene_dir.display()),
+            )));
+        }
         let mut out = std::io::BufWriter::with_capacity(1 << 16, std::fs::File::create(&tmp)?);
         let mut count = 0usize;
         for blob in blobs {
@@ -251,6 +258,20 @@ mod tests {
         write(dir.path(), &k2, fr.iter().map(compress_depth)).unwrap();
         assert_eq!(open(dir.path(), &k2).unwrap().unwrap(), fr);
         assert!(open(dir.path(), &k1).unwrap().is_none(), "old file removed");
+    }
+
+    #[test]
+    fn a_missing_scene_folder_is_not_created_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let gone = dir.path().join("deleted-scene");
+        let fr = frames();
+        let k = key(&fr);
+        let e = write(&gone, &k, fr.iter().map(compress_depth)).unwrap_err();
+        assert!(
+            matches!(&e, WriteError::Io(io) if io.kind() == std::io::ErrorKind::NotFound),
+            "{e}"
+        );
+        assert!(!gone.exists(), "the folder came back");
     }
 
     #[test]

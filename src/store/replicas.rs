@@ -153,10 +153,12 @@ impl Store {
         Ok(n.is_some())
     }
 
-    /// Extend `owner`'s indexing lease; false when it is no longer `owner`'s.
+    /// Extend `owner`'s indexing lease; false when it is no longer `owner`'s, or the scene
+    /// is being deleted (its indexer then stops instead of writing beside a delete).
     pub async fn renew_indexing(&self, id: &str, owner: &str) -> Result<bool, StoreError> {
         let r = sqlx::query(&self.sql(format!(
-            "UPDATE scenes SET index_until = {} + ? WHERE id = ? AND index_owner = ?",
+            "UPDATE scenes SET index_until = {} + ? WHERE id = ? AND index_owner = ? \
+             AND status <> 'deleting'",
             now_ms(self.backend)
         )))
         .bind(self.lease_ms())

@@ -261,16 +261,18 @@ impl Store {
         )
     }
 
-    /// Load a scene for the pipeline: cameras and decoded depth for every frame.
+    /// Load a scene for the pipeline: cameras and decoded depth for every frame. None when
+    /// the scene is gone or being deleted.
     pub async fn load_scene(
         &self,
         id: &str,
         scene_dir: &Path,
     ) -> Result<Option<SceneData>, StoreError> {
-        let Some(s) = sqlx::query(&self.sql("SELECT * FROM scenes WHERE id = ?"))
-            .bind(id)
-            .fetch_optional(&self.pool)
-            .await?
+        let Some(s) =
+            sqlx::query(&self.sql("SELECT * FROM scenes WHERE id = ? AND status <> 'deleting'"))
+                .bind(id)
+                .fetch_optional(&self.pool)
+                .await?
         else {
             return Ok(None);
         };

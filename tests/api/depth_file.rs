@@ -57,3 +57,49 @@ async fn a_loaded_scene_maps_its_depth_file_instead_of_decoding_the_stored_blobs
     );
     drop(dir);
 }
+
+/// A scene deleted while it is still being indexed (#18 CI failure): the delete removes the
+/// folder; a load racing it must neither write the depth file back into a re-created folder
+/// nor keep an indexer's lease alive, and a scene marked `deleting` no longer loads.
+#[tokio::test]
+async fn a_load_racing_a_delete_leaves_no_folder_and_the_indexer_lets_go() {
+    use grounder::store::Claim;
+    let app = TestApp::spawn().await;
+    let scene = app.upload_tiny_scene(3).await;
+    let data_dir = app.data_dir.clone();
+    let dir = app.stop().await;
+    let scene_dir = data_dir.join("scenes").join(&scene);
+    let store = grounder::store::Store::open(&data_dir).await.unwrap();
+
+    // The delete removed the folder just before the load wrote the depth file.
+    std::fs::remove_dir_all(&scene_dir).unwrap();
+    let loaded = store.load_scene(&scene, &scene_dir).await.unwrap().unwrap();
+    assert_eq!(loaded.frames.len(), 3, "the depth is decoded into memory");
+    assert_eq!(loaded.frames[2].depth.get(31, 23), 1310);
+    assert!(
+        !scene_dir.exists(),
+        "the load re-created the deleted scene's folder"
+    );
+
+    // An indexer holding the scene loses its lease once the scene is being deleted.
+    assert!(store
+        .claim_indexing(&scene, "indexer", Claim::Start)
+        .await
+        .unwrap());
+    assert!(store.renew_indexing(&scene, "indexer").await.unwrap());
+    assert!(store.delete_scene_if_idle(&scene).await.unwrap());
+    assert!(
+        !store.renew_indexing(&scene, "indexer").await.unwrap(),
+        "the indexer keeps a deleted scene's lease"
+    );
+    assert!(
+        store
+            .load_scene(&scene, &scene_dir)
+            .await
+            .unwrap()
+            .is_none(),
+        "a scene being deleted still loads"
+    );
+    assert!(!scene_dir.exists());
+    drop(dir);
+}
