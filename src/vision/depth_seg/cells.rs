@@ -49,7 +49,9 @@ impl DepthSegmenter {
     ///   is an occluder of `won` (a chair pushed up to a desk that runs into the wall);
     /// - the surfaces of the `weak` modes, wherever they lie: a thin object seen along its
     ///   length (a floor lamp's pole from above) spreads over many depth bins and never
-    ///   makes a strong mode, and `won` is then the background behind it.
+    ///   makes a strong mode, and `won` is then the background behind it;
+    /// - what the box's central part holds besides `won` ([`Self::rest_surface`]), for a
+    ///   pole whose depth spreads so far that it makes no weak mode either.
     pub(super) fn ended_surface(
         &self,
         g: &Grid,
@@ -78,6 +80,11 @@ impl DepthSegmenter {
         for &m in weak {
             let (region, outside) = self.surface(g, m, cell_px);
             offer(score(&region, outside), &region);
+        }
+        if self.prefer_within {
+            if let Some((region, outside)) = self.rest_surface(g, &won.1, cell_px) {
+                offer(score(&region, outside), &region);
+            }
         }
         found
     }

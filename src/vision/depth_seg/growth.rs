@@ -167,6 +167,41 @@ impl DepthSegmenter {
         }
     }
 
+    /// What lies in the box's central part besides `won` (a background that ran past the
+    /// box), grown as a surface with `won` kept out: the object before it when its depth
+    /// spreads over too many bins to make a mode of its own (a floor lamp's pole seen along
+    /// its length in front of the wall). Seeded at the median depth of the central cells
+    /// that `won` does not hold; None when fewer than four such cells have depth.
+    pub(super) fn rest_surface(
+        &self,
+        g: &Grid,
+        won: &[bool],
+        cell_px: f64,
+    ) -> Option<(Vec<bool>, f64)> {
+        let [bx0, by0, bx1, by1] = g.b;
+        let (qx, qy) = ((bx1 - bx0) / 4, (by1 - by0) / 4);
+        let mut z: Vec<f64> = (by0 + qy..(by1 - qy).min(g.h))
+            .flat_map(|gy| (bx0 + qx..(bx1 - qx).min(g.w)).map(move |gx| gy * g.w + gx))
+            .filter(|&i| !won[i] && g.z[i] > 0.0 && !g.edge[i])
+            .map(|i| g.z[i])
+            .collect();
+        if z.len() < 4 {
+            return None;
+        }
+        let target = crate::geometry::cloud::median(&mut z);
+        let rule = (Colour::Off, Reach::Surface);
+        let mut region = self.grow(g, target, cell_px, won, rule);
+        if let Some(cut) = self.support_cut(g, &region) {
+            let blocked: Vec<bool> = won.iter().zip(&cut).map(|(a, b)| *a || *b).collect();
+            let regrown = self.grow(g, target, cell_px, &blocked, rule);
+            if regrown.iter().any(|&b| b) {
+                region = regrown;
+            }
+        }
+        let outside = g.outside_share(&region);
+        region.iter().any(|&b| b).then_some((region, outside))
+    }
+
     pub(super) fn surface_with(
         &self,
         g: &Grid,
