@@ -51,7 +51,8 @@ impl DepthSegmenter {
     ///   length (a floor lamp's pole from above) spreads over many depth bins and never
     ///   makes a strong mode, and `won` is then the background behind it;
     /// - what the box's central part holds besides `won` ([`Self::rest_surface`]), for a
-    ///   pole whose depth spreads so far that it makes no weak mode either.
+    ///   pole whose depth spreads so far that it makes no weak mode either; before `won`,
+    ///   on the strong modes' terms.
     pub(super) fn ended_surface(
         &self,
         g: &Grid,
@@ -82,8 +83,12 @@ impl DepthSegmenter {
             offer(score(&region, outside), &region);
         }
         if self.prefer_within {
+            // As a strong mode's: before `won`, it must explain the box by itself.
             if let Some((region, outside)) = self.rest_surface(g, &won.1, cell_px) {
-                offer(score(&region, outside), &region);
+                let sc = score(&region, outside);
+                if Self::median_depth(g, &region) > front || sc >= self.group_below {
+                    offer(sc, &region);
+                }
             }
         }
         found
