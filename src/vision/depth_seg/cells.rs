@@ -52,7 +52,8 @@ impl DepthSegmenter {
     ///   makes a strong mode, and `won` is then the background behind it;
     /// - what the box's central part holds besides `won` ([`Self::rest_surface`]), for a
     ///   pole whose depth spreads so far that it makes no weak mode either; before `won`,
-    ///   on the strong modes' terms.
+    ///   on the strong modes' terms, and not when a strong mode's surface already holds
+    ///   most of it (a chair under a desk: it was weighed above).
     pub(super) fn ended_surface(
         &self,
         g: &Grid,
@@ -83,10 +84,15 @@ impl DepthSegmenter {
             offer(score(&region, outside), &region);
         }
         if self.prefer_within {
-            // As a strong mode's: before `won`, it must explain the box by itself.
+            // As a strong mode's: before `won`, it must explain the box by itself. What a
+            // strong mode's surface already holds for the most part had its chance above.
             if let Some((region, outside)) = self.rest_surface(g, &won.1, cell_px) {
                 let sc = score(&region, outside);
-                if Self::median_depth(g, &region) > front || sc >= self.group_below {
+                let cells = region.iter().filter(|&&b| b).count();
+                let grown = strong.iter().any(|(_, r)| {
+                    2 * r.iter().zip(&region).filter(|(a, b)| **a && **b).count() >= cells
+                });
+                if !grown && (Self::median_depth(g, &region) > front || sc >= self.group_below) {
                     offer(sc, &region);
                 }
             }
