@@ -189,16 +189,8 @@ impl DepthSegmenter {
             return None;
         }
         let target = crate::geometry::cloud::median(&mut z);
-        let rule = (Colour::Off, Reach::Surface);
-        let mut region = self.grow(g, target, cell_px, won, rule);
-        if let Some(cut) = self.support_cut(g, &region) {
-            let blocked: Vec<bool> = won.iter().zip(&cut).map(|(a, b)| *a || *b).collect();
-            let regrown = self.grow(g, target, cell_px, &blocked, rule);
-            if regrown.iter().any(|&b| b) {
-                region = regrown;
-            }
-        }
-        let outside = g.outside_share(&region);
+        let (region, outside) =
+            self.surface_blocked(g, target, cell_px, won, (Colour::Off, Reach::Surface));
         region.iter().any(|&b| b).then_some((region, outside))
     }
 
@@ -211,9 +203,23 @@ impl DepthSegmenter {
         reach: Reach,
     ) -> (Vec<bool>, f64) {
         let none = vec![false; g.z.len()];
-        let mut region = self.grow(g, target, cell_px, &none, (colour, reach));
+        self.surface_blocked(g, target, cell_px, &none, (colour, reach))
+    }
+
+    /// The surface grown from `target` by `rule` without entering `blocked`, grown again
+    /// with its support kept out too when it leaked onto one; with its outside share.
+    fn surface_blocked(
+        &self,
+        g: &Grid,
+        target: f64,
+        cell_px: f64,
+        blocked: &[bool],
+        rule: (Colour, Reach),
+    ) -> (Vec<bool>, f64) {
+        let mut region = self.grow(g, target, cell_px, blocked, rule);
         if let Some(cut) = self.support_cut(g, &region) {
-            let regrown = self.grow(g, target, cell_px, &cut, (colour, reach));
+            let blocked: Vec<bool> = blocked.iter().zip(&cut).map(|(a, b)| *a || *b).collect();
+            let regrown = self.grow(g, target, cell_px, &blocked, rule);
             if regrown.iter().any(|&b| b) {
                 region = regrown;
             }
