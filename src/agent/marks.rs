@@ -1,8 +1,8 @@
 //! Set-of-marks selection (ours): the class-agnostic candidates of the chosen image, found
 //! at indexing from the scan itself (`vision::candidates`), are drawn as numbered regions
 //! and the VLM picks the one the query describes, with the same feedback rules as instance
-//! selection. When the VLM says no region is the target, it is asked for the box itself
-//! (`box_fallback`). A frame without current cached candidates gets them computed here
+//! selection. When the VLM says no region is the target, or the image has no region at
+//! all, it is asked for the box itself (`box_fallback`). A frame without current cached candidates gets them computed here
 //! (`candidate_cache`).
 
 use image::RgbImage;
@@ -79,6 +79,12 @@ pub async fn select(
         t,
     )
     .await;
+    // The scan separated nothing in this image that could be the target (an object of the
+    // wall's colour flush with it, seen with nothing else around): as when no mark outlines
+    // it, the VLM that chose the image draws the box itself.
+    if cands.is_empty() && g.params.candidates.box_fallback {
+        return vlm_box::ask(g, ctx, budget, conv, analysis, idx, image).await;
+    }
     if cands.is_empty() {
         return Ok(not_here(
             g,

@@ -155,6 +155,58 @@ async fn no_mark_outlines_the_target_so_the_vlm_draws_its_box() {
     assert_trace_clean(&job);
 }
 
+/// The chosen image has no candidate at all (here: every region is below `min_cells`, as a
+/// white door flush with a white wall is): the VLM is asked for the box at once instead of
+/// being sent to another image, and with `box_fallback` off it is sent on.
+#[tokio::test]
+async fn an_image_without_any_candidate_gets_its_box_from_the_vlm() {
+    for fallback in [true, false] {
+        let f = Fixture::start_with_config(5_000, "centernet", |c| {
+            c.agent.candidates.enabled = true;
+            c.agent.candidates.min_cells = 1_000_000;
+            c.agent.candidates.box_fallback = fallback;
+        })
+        .await;
+        assert!(f.candidates(0).await.is_empty(), "frame 0 has candidates");
+        f.vlm.script_push(vec![
+            analysis("whiteboard"),
+            pick_image("00000"),
+            Reply::ok(
+                serde_json::json!({"reasoning": "left of the door", "bbox_2d": [2, 2, 30, 30]})
+                    .to_string(),
+            ),
+        ]);
+        let job = f.run_job(QUERY).await;
+        let listed = steps(&job, "candidates");
+        assert!(!listed.is_empty(), "{job:#}");
+        assert_eq!(listed[0]["outputs"]["candidates"], serde_json::json!([]));
+        assert!(steps(&job, "mark_selection").is_empty(), "{job:#}");
+        let reqs = f.vlm.requests();
+        assert!(reqs.len() >= 3, "{} requests", reqs.len());
+        let asked = text_of(last_message(&reqs[2]));
+        if fallback {
+            assert_eq!(job["status"], "succeeded", "{job:#}");
+            assert_eq!(
+                job["result"]["box_source"], "vlm_box",
+                "{:#}",
+                job["result"]
+            );
+            assert!(asked.contains("Task: object box"), "{asked}");
+            let boxes = steps(&job, "vlm_box");
+            assert_eq!(boxes.len(), 1, "{job:#}");
+            assert_eq!(
+                boxes[0]["outputs"]["box"],
+                serde_json::json!([2.0, 2.0, 30.0, 30.0])
+            );
+            assert_trace_clean(&job);
+        } else {
+            let fb = prompts().feedback_object_not_existing(0, "whiteboard");
+            assert_eq!(asked, fb);
+            assert!(steps(&job, "vlm_box").is_empty(), "{job:#}");
+        }
+    }
+}
+
 /// With `box_fallback` off, "no region" sends the VLM to another image.
 #[tokio::test]
 async fn without_the_box_fallback_no_mark_means_not_in_this_image() {

@@ -112,9 +112,9 @@ pub struct CandidateParams {
     /// misses instances and boxes the wrong object. Candidates overlapping a detection by
     /// more than `dedupe_iou` are left out.
     pub beside_detections: bool,
-    /// When the VLM answers that no marked region is the target, ask it for the target's
-    /// box in that image (the `detector = "vlm"` request, in `[agent] box_format`) instead
-    /// of sending it to another image.
+    /// When the VLM answers that no marked region is the target, or the chosen image has no
+    /// candidate at all, ask it for the target's box in that image (the `detector = "vlm"`
+    /// request, in `[agent] box_format`) instead of sending it to another image.
     pub box_fallback: bool,
     /// In the multi-view ensemble, a view without a detection of the target class takes the
     /// candidate of that view that holds the reprojected object (the rule applied to
