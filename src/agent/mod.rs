@@ -65,6 +65,10 @@ pub struct AgentParams {
     /// 4 points of Acc@0.25 but lost 3 of Nr3D accuracy, because when several instances
     /// exist, the one seen only from afar is no longer offered at all.
     pub good_depth_fraction: f64,
+    /// Frames a job may leave out because the box chosen in them measured nothing of the
+    /// object in 3D (no mask pixel with depth, or no point left after outlier removal):
+    /// the VLM then chooses again among the other offered frames. 0: the job fails there.
+    pub max_left_out: usize,
     /// VLM calls a job may make.
     pub max_vlm_calls: u32,
     /// Wall time a job may take, seconds.
@@ -89,6 +93,7 @@ impl Default for AgentParams {
             fallback_frames: 48,
             min_depth_fraction: 0.2,
             good_depth_fraction: 0.2,
+            max_left_out: 2,
             max_vlm_calls: 16,
             max_job_seconds: 600,
             box_format: BoxFormat::default(),
@@ -252,48 +257,75 @@ impl VlmGrounder {
         still_wanted(&ctx.cancel, "stitching")?;
         let mut grids = stitching::run(self, ctx, &pre).await?;
         drop(slot);
-        let choice = loop {
-            still_wanted(&ctx.cancel, "grounding")?;
-            let room = layout.as_deref();
-            match grounding::run(self, ctx, budget, log, &analysis, &pre, &grids, room).await? {
-                grounding::Grounded::Chosen(c) => break c,
-                grounding::Grounded::NoneOffered(why) => {
-                    // Once: the frames the detector left out, else the VLM's "not here".
-                    let slot = self.compute_slot(ctx).await?;
-                    let wider = match preselect::widened(self, ctx, &analysis, &pre).await {
-                        Some(w) => w,
-                        _ => {
-                            return Err(JobFailure::new(
-                                "target_not_found",
-                                format!(
-                                    "the VLM saw the target in none of the offered frames: {why}"
-                                ),
-                            ))
-                        }
-                    };
-                    still_wanted(&ctx.cancel, "stitching")?;
-                    grids = stitching::run(self, ctx, &wider).await?;
-                    pre = wider;
-                    drop(slot);
+        // Frames left out after their chosen box measured nothing of the object.
+        let mut left_out: Vec<usize> = Vec::new();
+        let (choice, projected) = loop {
+            let choice = loop {
+                still_wanted(&ctx.cancel, "grounding")?;
+                let room = layout.as_deref();
+                match grounding::run(self, ctx, budget, log, &analysis, &pre, &grids, room).await? {
+                    grounding::Grounded::Chosen(c) => break c,
+                    grounding::Grounded::NoneOffered(why) => {
+                        // Once: the frames the detector left out, else the VLM's "not here".
+                        let slot = self.compute_slot(ctx).await?;
+                        let Some(wider) = preselect::widened(self, ctx, &analysis, &pre).await
+                        else {
+                            let why = format!(
+                                "the VLM saw the target in none of the offered frames: {why}"
+                            );
+                            return Err(JobFailure::new("target_not_found", why));
+                        };
+                        still_wanted(&ctx.cancel, "stitching")?;
+                        grids = stitching::run(self, ctx, &wider).await?;
+                        pre = wider;
+                        drop(slot);
+                    }
                 }
+            };
+            // The grids' JPEGs are on disk as artifacts; projection does not need them (they
+            // are made again if the VLM must choose again).
+            drop(grids);
+            // Projection takes its compute slot itself: it lets it go while it waits for the
+            // VLM (`view_box`).
+            still_wanted(&ctx.cancel, "projection")?;
+            let err = match projection::run(
+                self,
+                ctx,
+                budget,
+                log,
+                &analysis.target_class,
+                &pre,
+                &choice,
+                layout.clone(),
+            )
+            .await
+            {
+                Ok(p) => break (choice, p),
+                Err(e) => e,
+            };
+            // The chosen view measured nothing of the object (a floor lamp's pole with no
+            // reading, the rest hidden): that frame is left out and the VLM chooses again
+            // among the others, up to `max_left_out` times.
+            let unmeasured = err.code == "empty_mask" || err.code == "projection_failed";
+            if !unmeasured || left_out.len() >= self.params.max_left_out || pre.frames.len() < 2 {
+                return Err(err);
             }
+            left_out.push(choice.frame_idx);
+            step(
+                ctx,
+                "reselection",
+                json!({"image_id": format!("{:05}", choice.frame_idx), "failure": err.code, "detail": err.detail}),
+                json!({"left_out": left_out.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "offered": pre.frames.len() - 1}),
+                Instant::now(),
+            )
+            .await;
+            let slot = self.compute_slot(ctx).await?;
+            pre.frames.retain(|&i| i != choice.frame_idx);
+            pre.round += 1;
+            still_wanted(&ctx.cancel, "stitching")?;
+            grids = stitching::run(self, ctx, &pre).await?;
+            drop(slot);
         };
-        // The grids' JPEGs are on disk as artifacts; the rest of the job does not need them.
-        drop(grids);
-        // Projection takes its compute slot itself: it lets it go while it waits for the VLM
-        // (`view_box`).
-        still_wanted(&ctx.cancel, "projection")?;
-        let projected = projection::run(
-            self,
-            ctx,
-            budget,
-            log,
-            &analysis.target_class,
-            &pre,
-            &choice,
-            layout,
-        )
-        .await?;
 
         let total_ms = ms(started);
         let usage = budget.total_usage();

@@ -32,6 +32,38 @@ pub fn shared_tar() -> Vec<u8> {
     std::fs::read(&scene_tar().0).expect("the shared scene's tar")
 }
 
+/// The shared scene's tar with the left half of frame 0's depth emptied (no reading there,
+/// as where the object stands beyond the sensor's range).
+pub fn tar_without_depth_on_the_left_of_frame_0() -> Vec<u8> {
+    let mut archive = tar::Archive::new(std::fs::File::open(&scene_tar().0).unwrap());
+    let mut files = Vec::new();
+    for e in archive.entries().unwrap() {
+        let mut e = e.unwrap();
+        if !e.header().entry_type().is_file() {
+            continue;
+        }
+        let path = e.path().unwrap().to_string_lossy().to_string();
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut e, &mut bytes).unwrap();
+        if path.ends_with("depth/0.png") {
+            let mut d = image::load_from_memory(&bytes).unwrap().into_luma16();
+            let w = d.width();
+            for (x, _, p) in d.enumerate_pixels_mut() {
+                if x < w / 2 {
+                    p.0[0] = 0;
+                }
+            }
+            let mut out = std::io::Cursor::new(Vec::new());
+            image::DynamicImage::ImageLuma16(d)
+                .write_to(&mut out, image::ImageFormat::Png)
+                .unwrap();
+            bytes = out.into_inner();
+        }
+        files.push((path, bytes));
+    }
+    crate::helpers::tar_of(&files, None)
+}
+
 pub struct Fixture {
     pub app: TestApp,
     pub vlm: FakeVlm,

@@ -448,38 +448,6 @@ fn call_latencies(v: &serde_json::Value, out: &mut std::collections::BTreeMap<u6
     }
 }
 
-/// The shared scene's tar with the left half of frame 0's depth emptied (no reading there,
-/// as where the object stands beyond the sensor's range).
-fn tar_without_depth_on_the_left_of_frame_0() -> Vec<u8> {
-    let mut archive = tar::Archive::new(std::fs::File::open(&scene_tar().0).unwrap());
-    let mut files = Vec::new();
-    for e in archive.entries().unwrap() {
-        let mut e = e.unwrap();
-        if !e.header().entry_type().is_file() {
-            continue;
-        }
-        let path = e.path().unwrap().to_string_lossy().to_string();
-        let mut bytes = Vec::new();
-        std::io::Read::read_to_end(&mut e, &mut bytes).unwrap();
-        if path.ends_with("depth/0.png") {
-            let mut d = image::load_from_memory(&bytes).unwrap().into_luma16();
-            let w = d.width();
-            for (x, _, p) in d.enumerate_pixels_mut() {
-                if x < w / 2 {
-                    p.0[0] = 0;
-                }
-            }
-            let mut out = std::io::Cursor::new(Vec::new());
-            image::DynamicImage::ImageLuma16(d)
-                .write_to(&mut out, image::ImageFormat::Png)
-                .unwrap();
-            bytes = out.into_inner();
-        }
-        files.push((path, bytes));
-    }
-    crate::helpers::tar_of(&files, None)
-}
-
 /// The VLM's box lies where the sensor read no depth (`unmeasured_retry`, on by default):
 /// it is told so once, with the frames that measured what its box shows
 /// (`nearer_frames`, on by default; without it the plain feedback), and chooses another
@@ -492,7 +460,7 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
     let left = [2.0, 2.0, (w / 2 - 40) as f32, (h - 2) as f32];
     for (on, nearer) in [(true, true), (true, false), (false, true)] {
         let f = Fixture::start_with_tar(
-            tar_without_depth_on_the_left_of_frame_0(),
+            crate::agent_fixture::tar_without_depth_on_the_left_of_frame_0(),
             5_000,
             "centernet",
             |c| {

@@ -41,6 +41,7 @@ mod agent_candidate_cache;
 mod agent_fixture;
 mod agent_marks;
 mod agent_paths;
+mod agent_reselect;
 mod agent_room;
 mod agent_vlm_errors;
 mod agent_widen;
