@@ -247,11 +247,46 @@ pub fn step_line(s: &Value) -> String {
             .as_array()
             .map(|a| format!("{} candidates", a.len())),
         "projection" => o["views_used"].as_u64().map(|v| format!("{v} views fused")),
+        "reselection" => s["inputs"]["image_id"].as_str().map(|i| {
+            let why = s["inputs"]["failure"].as_str().unwrap_or("?");
+            format!("image {i} left out ({why})")
+        }),
         _ => None,
     };
     let ms = s["ms"].as_f64().unwrap_or(0.0);
     match what {
         Some(w) => format!("  {name:<18} {ms:>8.0} ms  {w}"),
         None => format!("  {name:<18} {ms:>8.0} ms"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::step_line;
+    use serde_json::json;
+
+    #[test]
+    fn a_step_line_names_the_steps_most_telling_output() {
+        let left = json!({"step": "reselection", "ms": 0.5,
+            "inputs": {"image_id": "00031", "failure": "projection_failed"},
+            "outputs": {"left_out": ["00031"]}});
+        let line = step_line(&left);
+        assert!(
+            line.contains("image 00031 left out (projection_failed)"),
+            "{line}"
+        );
+        let chosen =
+            json!({"step": "image_selection", "ms": 12.0, "outputs": {"image_id": "00007"}});
+        assert!(
+            step_line(&chosen).ends_with("image 00007"),
+            "{}",
+            step_line(&chosen)
+        );
+        let other = json!({"step": "summary", "ms": 3.0, "outputs": {}});
+        assert!(
+            step_line(&other).trim_end().ends_with("ms"),
+            "{}",
+            step_line(&other)
+        );
     }
 }
