@@ -2,8 +2,8 @@
 //! at indexing from the scan itself (`vision::candidates`), are drawn as numbered regions
 //! and the VLM picks the one the query describes, with the same feedback rules as instance
 //! selection. When the VLM says no region is the target, or the image has no region at
-//! all, it is asked for the box itself (`box_fallback`). A frame without current cached candidates gets them computed here
-//! (`candidate_cache`).
+//! all, it is asked for the box itself (`box_fallback`). A frame without current cached
+//! candidates gets them computed here (`candidate_cache`).
 
 use image::RgbImage;
 use serde_json::json;

@@ -268,7 +268,14 @@ impl VlmGrounder {
                     grounding::Grounded::NoneOffered(why) => {
                         // Once: the frames the detector left out, else the VLM's "not here".
                         let slot = self.compute_slot(ctx).await?;
-                        let Some(wider) = preselect::widened(self, ctx, &analysis, &pre).await
+                        let wider = preselect::widened(self, ctx, &analysis, &pre).await;
+                        // A frame left out below stays out.
+                        let Some(wider) = wider
+                            .map(|mut w| {
+                                w.frames.retain(|i| !left_out.contains(i));
+                                w
+                            })
+                            .filter(|w| !w.frames.is_empty())
                         else {
                             let why = format!(
                                 "the VLM saw the target in none of the offered frames: {why}"
