@@ -64,6 +64,23 @@ pub fn tar_without_depth_on_the_left_of_frame_0() -> Vec<u8> {
     crate::helpers::tar_of(&files, None)
 }
 
+/// A lamp job on a scene from [`tar_without_depth_on_the_left_of_frame_0`]: the VLM picks
+/// frame 0, says no mark outlines the lamp and draws box `left` itself; asked again, it
+/// picks frame 1 and its mark 0.
+pub async fn run_left_box_then_frame_1(f: &Fixture, left: [f32; 4]) -> Value {
+    let none = json!({"reasoning": "no outline", "object_id": null}).to_string();
+    let boxed = json!({"reasoning": "on the left", "bbox_2d": left}).to_string();
+    f.vlm.script_push(vec![
+        analysis("lamp"),
+        pick_image("00000"),
+        Reply::ok(none),
+        Reply::ok(boxed),
+        pick_image("00001"),
+        pick_object(0),
+    ]);
+    f.run_job(crate::agent_paths::QUERY).await
+}
+
 pub struct Fixture {
     pub app: TestApp,
     pub vlm: FakeVlm,

@@ -470,17 +470,7 @@ async fn a_box_without_depth_sends_the_vlm_to_a_nearer_frame_once() {
             },
         )
         .await;
-        let none = serde_json::json!({"reasoning": "no outline", "object_id": null}).to_string();
-        let boxed = serde_json::json!({"reasoning": "on the left", "bbox_2d": left}).to_string();
-        f.vlm.script_push(vec![
-            analysis("lamp"),
-            pick_image("00000"),
-            Reply::ok(none),
-            Reply::ok(boxed),
-            pick_image("00001"),
-            pick_object(0),
-        ]);
-        let job = f.run_job(QUERY).await;
+        let job = run_left_box_then_frame_1(&f, left).await;
         let reqs = f.vlm.requests();
         let sent: Vec<String> = reqs.iter().map(|r| text_of(last_message(r))).collect();
         let plain = prompts().feedback_no_depth(0, "lamp");

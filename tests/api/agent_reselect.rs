@@ -2,8 +2,7 @@
 //! frame is left out, the grids are made again without it, and the VLM chooses anew.
 
 use crate::agent_fixture::*;
-use crate::agent_paths::QUERY;
-use crate::fake_vlm::{last_message, text_of, Reply};
+use crate::fake_vlm::{last_message, text_of};
 
 /// The VLM's box lies where frame 0 has no depth, and nothing completes it (depth
 /// completion off, the no-depth check before projection off): the mask has no point in
@@ -26,17 +25,7 @@ async fn a_frame_whose_box_measured_nothing_is_left_out_and_the_vlm_chooses_agai
             },
         )
         .await;
-        let none = serde_json::json!({"reasoning": "no outline", "object_id": null}).to_string();
-        let boxed = serde_json::json!({"reasoning": "on the left", "bbox_2d": left}).to_string();
-        f.vlm.script_push(vec![
-            analysis("lamp"),
-            pick_image("00000"),
-            Reply::ok(none),
-            Reply::ok(boxed),
-            pick_image("00001"),
-            pick_object(0),
-        ]);
-        let job = f.run_job(QUERY).await;
+        let job = run_left_box_then_frame_1(&f, left).await;
         let again = steps(&job, "reselection");
         if max_left_out == 0 {
             assert_eq!(job["status"], "failed", "{job:#}");
