@@ -79,32 +79,24 @@ pub async fn select(
         t,
     )
     .await;
-    // The scan separated nothing in this image that could be the target (an object of the
-    // wall's colour flush with it, seen with nothing else around): as when no mark outlines
-    // it, the VLM that chose the image draws the box itself.
-    if cands.is_empty() && g.params.candidates.box_fallback {
-        return vlm_box::ask(g, ctx, budget, conv, analysis, idx, image).await;
-    }
-    if cands.is_empty() {
-        return Ok(not_here(
+    // With no region at all (the scan separated nothing here that could be the target),
+    // the VLM is not asked to pick one: that is the "no region outlines it" answer below.
+    let chosen = if cands.is_empty() {
+        None
+    } else {
+        instance::select(
             g,
+            ctx,
+            budget,
+            conv,
+            analysis,
             idx,
-            &analysis.target_class,
-            format!("no candidate region in image {idx:05}"),
-        ));
-    }
-    let chosen = instance::select(
-        g,
-        ctx,
-        budget,
-        conv,
-        analysis,
-        idx,
-        image,
-        &cands,
-        SelectKind::Marks,
-    )
-    .await?;
+            image,
+            &cands,
+            SelectKind::Marks,
+        )
+        .await?
+    };
     match chosen {
         Some((i, bbox)) => {
             let source = if i < dets.len() {
@@ -120,11 +112,13 @@ pub async fn select(
         None if g.params.candidates.box_fallback => {
             vlm_box::ask(g, ctx, budget, conv, analysis, idx, image).await
         }
-        None => Ok(not_here(
-            g,
-            idx,
-            &analysis.target_class,
-            format!("the VLM found no marked region that is the target in image {idx:05}"),
-        )),
+        None => {
+            let why = if cands.is_empty() {
+                format!("no candidate region in image {idx:05}")
+            } else {
+                format!("the VLM found no marked region that is the target in image {idx:05}")
+            };
+            Ok(not_here(g, idx, &analysis.target_class, why))
+        }
     }
 }
