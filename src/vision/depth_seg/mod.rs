@@ -23,9 +23,11 @@
 //! along its length, a floor lamp's pole from above, spreads over many depth bins and
 //! never makes a strong mode). Strong modes whose cells a nearer mode's surface already
 //! holds (a slanted table top spans several) do not count towards the four modes grown.
-//! When no surface explains the box so, each is grown again across the larger step between
-//! the parts of one object (a lamp's shade in front of its pole), keeping only the pieces
-//! that adds inside the box.
+//! When no surface explains the box so, or the first winner ran on past the margin (a
+//! background explains no box, however well it fills one: the wall around a lamp whose box
+//! reaches the frame's edge), each is grown again across the larger step between the parts
+//! of one object (a lamp's shade in front of its pole), keeping only the pieces that adds
+//! inside the box, and not when the whole runs past the margin itself.
 //! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
 //! its size and of its colour (a window's panes either side of its mullion). Small holes
 //! (missing depth) are closed and depth-less pixels whose colour matches the region are
@@ -81,6 +83,8 @@ pub struct DepthSegmenter {
     /// ...only when no one surface scores this much (extent filling the box, less what
     /// runs past it): a surface that explains most of its box is the object, and joining
     /// across the larger step would add what stands beside it (a table's end by a chair).
+    /// A winner that runs on past the box's margin is a background and explains no box
+    /// whatever its score.
     pub group_below: f64,
     pub group_step: f64,
     pub group_per_m: f64,
@@ -517,7 +521,10 @@ impl Segmenter for DepthSegmenter {
         }
         // A background or an occluder won: a surface that ends within the margin may be
         // the object (a chair's back above the table before it; a thin object's weak mode).
-        let mut ended = false;
+        let background = self.prefer_within
+            && best
+                .as_ref()
+                .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
         if let Some(won) = best.as_ref() {
             let weak: Vec<f64> = all_modes
                 .iter()
@@ -528,18 +535,20 @@ impl Segmenter for DepthSegmenter {
             let strong = if self.prefer_within { &scored[..] } else { &[] };
             if let Some(found) = self.ended_surface(&g, won, strong, &weak, cell_px, &score) {
                 best = Some(found);
-                ended = true;
             }
         }
-        // Parts are joined only when no one surface explains the box.
-        let unexplained = best.as_ref().is_none_or(|(s, _)| *s < self.group_below);
+        // Parts are joined only when no one surface explains the box; a surface that ran
+        // past the margin is a background and explains none, even when it fills the box
+        // well enough to score above the bar (the box reaching the frame's edge leaves it
+        // little margin to run into).
+        let unexplained = background || best.as_ref().is_none_or(|(s, _)| *s < self.group_below);
         if self.group_alternative && unexplained {
             for (m, region) in plain {
                 let (grouped, _) = self.surface_with(&g, m, cell_px, Colour::Off, Reach::Group);
                 if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
                     // What was set aside for running past the margin does not come back
-                    // joined to the surface that replaced it.
-                    if ended && self.prefer_within && Self::runs_past_margin(&g, &whole) {
+                    // joined to another surface.
+                    if background && Self::runs_past_margin(&g, &whole) {
                         continue;
                     }
                     let sc = score(&whole, g.outside_share(&whole));

@@ -5,7 +5,7 @@ use crate::geometry::{DepthMap, FrameCamera, Intrinsics};
 use image::{Rgb, RgbImage};
 use nalgebra::{Matrix4, Point3, Vector3};
 
-const S: u32 = 80;
+pub(super) const S: u32 = 80;
 
 /// An S x S camera with focal length `f` (pixels), centred principal point, depth aligned.
 fn camera(f: f64, pose: Matrix4<f64>) -> FrameCamera {
@@ -27,7 +27,7 @@ fn camera(f: f64, pose: Matrix4<f64>) -> FrameCamera {
 }
 
 /// The S x S camera at 1 m height, looking level along +x, focal length 80 pixels.
-fn level_camera() -> FrameCamera {
+pub(super) fn level_camera() -> FrameCamera {
     camera(
         80.0,
         look_at_pose(
