@@ -37,9 +37,9 @@ impl DepthSegmenter {
             || (by1 < g.h && row(g.h - 1) >= along(bx1 - bx0))
     }
 
-    /// When the winning surface `won` runs on past the box's margin, the best-scoring surface
-    /// that ends within the margin and scores at least half as well (the factor given to a
-    /// surface mostly outside the box), among:
+    /// The winning surface `won` runs on past the box's margin (the caller checked): the
+    /// best-scoring surface that ends within the margin and scores at least half as well
+    /// (the factor given to a surface mostly outside the box), among:
     /// - the strong modes' surfaces already scored (`strong`) that lie behind `won` (median
     ///   depth in the box): `won` is an occluder before the object covering much of its box
     ///   (a table top before a chair's back), and it hides part of the object's extent;
@@ -63,9 +63,6 @@ impl DepthSegmenter {
         cell_px: f64,
         score: &dyn Fn(&[bool], f64) -> f64,
     ) -> Option<(f64, Vec<bool>)> {
-        if !Self::runs_past_margin(g, &won.1) {
-            return None;
-        }
         let mut found: Option<(f64, Vec<bool>)> = None;
         let mut offer = |sc: f64, region: &[bool]| {
             let bar = found.as_ref().map_or(won.0 * 0.5, |(s, _)| *s);

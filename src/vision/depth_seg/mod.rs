@@ -521,11 +521,11 @@ impl Segmenter for DepthSegmenter {
         }
         // A background or an occluder won: a surface that ends within the margin may be
         // the object (a chair's back above the table before it; a thin object's weak mode).
-        let background = self.prefer_within
-            && best
-                .as_ref()
-                .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
-        if let Some(won) = best.as_ref() {
+        let past = best
+            .as_ref()
+            .is_some_and(|(_, r)| Self::runs_past_margin(&g, r));
+        let background = self.prefer_within && past;
+        if let Some(won) = best.as_ref().filter(|_| past) {
             let weak: Vec<f64> = all_modes
                 .iter()
                 .filter(|(_, share)| (self.weak_mode..self.strong_mode).contains(share))
