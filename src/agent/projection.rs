@@ -321,17 +321,20 @@ pub async fn run(
     // The room's floor.
     let sp = &g.params.geometry.support;
     let standing = down && sp.stands(target_class);
-    let floor =
-        if down && sp.enabled && (sp.floor_reach || standing) && g.params.geometry.layout.enabled {
-            match &walls {
-                Some(room) => room.floor,
-                None => scene_room(ctx, g.params.geometry.layout.clone())
-                    .await?
-                    .and_then(|r| r.floor),
-            }
-        } else {
-            None
-        };
+    let floor = if down
+        && sp.enabled
+        && (sp.floor_reach || sp.box_edge || standing)
+        && g.params.geometry.layout.enabled
+    {
+        match &walls {
+            Some(room) => room.floor,
+            None => scene_room(ctx, g.params.geometry.layout.clone())
+                .await?
+                .and_then(|r| r.floor),
+        }
+    } else {
+        None
+    };
     let rule = cp.partial.clone();
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
@@ -440,7 +443,7 @@ pub async fn run(
                 let (b, moved) = extend_to_support(&b, bulk, &context, &frames, down, params);
                 let bottom_moved = moved.iter().any(|m| m.axis == "z" && m.side == "min");
                 let stood_or_moved = bottom_moved || stood.is_some();
-                let (b, hidden, reach) = if down && params.support.enabled && !stood_or_moved {
+                let (b, bottom) = if down && params.support.enabled && !stood_or_moved {
                     let v = super::bottom::BottomViews {
                         anchor: &anchor_view,
                         anchor_box,
@@ -450,7 +453,7 @@ pub async fn run(
                     };
                     super::bottom::complete(&b, &v, floor, params)
                 } else {
-                    (b, None, None)
+                    (b, Default::default())
                 };
                 let (b, planar) = if flat {
                     snap_planar_to_wall(
@@ -468,7 +471,7 @@ pub async fn run(
                 let placed = moved.iter().any(|m| m.axis != "z");
                 let (b, round) =
                     round_back(&b, &fusion.kept, eye.into(), placed, &params.round_back);
-                (b, moved, planar, hidden, reach, round, stood)
+                (b, moved, planar, bottom, round, stood)
             });
             let support_ms = ms(tsup);
             // The masks of the views used and the object's points, written out as encoded.
@@ -496,10 +499,9 @@ pub async fn run(
         })
         .await
         .map_err(|e| JobFailure::new("internal", format!("fusion task failed: {e}")))?;
-    let (bbox, moved, planar, hidden_base, floor_reach, round_back, floor_standing) = support
-        .ok_or_else(|| {
-            JobFailure::new("projection_failed", "no points survived outlier removal")
-        })?;
+    let (bbox, moved, planar, bottom, round_back, floor_standing) = support.ok_or_else(|| {
+        JobFailure::new("projection_failed", "no points survived outlier removal")
+    })?;
     let views_used = 1 + fusion.views.iter().filter(|v| v.kept).count();
     let exported = exports?;
     let view_json: Vec<_> = views
@@ -515,7 +517,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": hidden_base, "floor_standing": floor_standing, "floor_reach": floor_reach, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

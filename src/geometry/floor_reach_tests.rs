@@ -3,7 +3,7 @@
 use super::*;
 use crate::geometry::camera::transform_point;
 use crate::geometry::test_scene::{
-    camera, first_surface_mask, room_slabs, seen_box, segmented_view,
+    camera, first_hit, first_surface_mask, pixel_ray, room_slabs, seen_box, segmented_view,
 };
 use crate::geometry::FrameCamera;
 
@@ -136,5 +136,106 @@ fn a_cup_on_a_table_with_a_loose_box_stays_on_the_table() {
     let (out, record) = extend_to_floor_reach(&b, &[(&v, loose)], 0.0, &GeometryParams::default());
     let record = record.expect("a record");
     assert_eq!(record.views[0].reaches_floor, Some(false), "{record:?}");
+    assert_eq!(
+        record.views[0].below_edge,
+        Some(BelowEdge::Support),
+        "{record:?}"
+    );
     assert_eq!(out, b);
+    // The table top before the cup's foot is what it stands on: the box's edge, two
+    // pixels into it, does not lower the bottom (at this resolution that is 40 % of the
+    // cup's image).
+    let (out, edge) = lower_to_box_edge(&b, &v, loose, Some(0.0), &GeometryParams::default());
+    assert_eq!(out, b, "{edge:?}");
+}
+
+/// A desk between the front camera and the lamp: its top hides the pole's lower half.
+const DESK: Block = ([1.5, 1.6, 0.0], [2.5, 2.0, 0.75]);
+
+/// The lowest row where the line of sight through the pole's middle column meets the pole
+/// first (a detector's box of what shows of the lamp ends there).
+fn pole_bottom_row(cam: &FrameCamera, world: &[Block], pole: usize) -> f64 {
+    let to_cam = cam.out_to_cam().expect("pose");
+    let mid = transform_point(&to_cam, &Point3::new(2.0, 2.5, 1.0));
+    let (u, _, _) = cam.color.project(&mid).expect("in front");
+    let rows = f64::from(cam.color.height) * 4.0;
+    (0..rows as u32)
+        .map(|k| f64::from(k) / 4.0)
+        .filter(|&v| {
+            let (o, d) = pixel_ray(cam, u, v);
+            first_hit(&o, &d, world.iter().map(|(lo, hi)| (lo, hi))).is_some_and(|(i, _)| i == pole)
+        })
+        .fold(f64::NAN, f64::max)
+}
+
+fn lamp_behind_desk() -> Vec<Block> {
+    let mut w = room_slabs(4.0, 4.0, 3.0);
+    w.extend([DESK, POLE, SHADE]);
+    w
+}
+
+#[test]
+fn a_lamp_whose_pole_is_hidden_behind_a_desk_reaches_down_to_where_its_box_ends() {
+    let world = lamp_behind_desk();
+    let pole = world.len() - 2;
+    let cam = front_camera();
+    let (depth, mask) = first_surface_mask(&cam, &world, SHADE, RANGE);
+    let b = seen_box(&cam, &depth, &mask);
+    assert!(b.min[2] > 1.2, "only the shade was measured: {b:?}");
+    // What shows of the lamp: the shade and the pole down to the desk's far edge.
+    let bottom = pole_bottom_row(&cam, &world, pole);
+    let mut shown = image_box(&cam, &[SHADE]);
+    shown[3] = bottom as f32;
+    let v = segmented_view(6, &cam, &depth, &mask);
+    let gp = GeometryParams::default();
+    let (out, edge) = lower_to_box_edge(&b, &v, shown, Some(0.0), &gp);
+    let edge = edge.expect("the view is read");
+    assert_eq!(edge.view.below_edge, Some(BelowEdge::Occluder), "{edge:?}");
+    // The line of sight over the desk's far edge meets the pole 0.57 m up; at the shade's
+    // front, nearer, it is a little higher: the bottom goes down to about there, never
+    // below what shows.
+    assert!(out.min[2] > 0.5 && out.min[2] < 0.8, "{edge:?}");
+    assert_eq!(
+        (out.max, out.min[0], out.min[1]),
+        (b.max, b.min[0], b.min[1])
+    );
+    // The box of the shade alone holds nothing depth missed.
+    let (out, edge) = lower_to_box_edge(&b, &v, image_box(&cam, &[SHADE]), Some(0.0), &gp);
+    assert_eq!(out, b, "{edge:?}");
+    // Turned off by the share of the box that must be unmeasured.
+    let mut strict = gp.clone();
+    strict.support.box_edge_unmeasured = 1.01;
+    assert_eq!(lower_to_box_edge(&b, &v, shown, Some(0.0), &strict).0, b);
+}
+
+#[test]
+fn a_box_that_ends_on_a_nearer_desk_does_not_veto_a_view_that_sees_the_foot() {
+    let world = lamp_behind_desk();
+    let pole = world.len() - 2;
+    let front = front_camera();
+    let (depth, mask) = first_surface_mask(&front, &world, SHADE, RANGE);
+    // The shade's box, as the views fused would give it.
+    let b = Aabb {
+        min: SHADE.0,
+        max: SHADE.1,
+    };
+    let mut shown = image_box(&front, &[SHADE]);
+    shown[3] = pole_bottom_row(&front, &world, pole) as f32;
+    let back = camera([2.0, 3.8, 1.4], [2.0, 2.5, 0.8]);
+    let (back_depth, back_mask) = first_surface_mask(&back, &world, SHADE, RANGE);
+    let (a, s) = (
+        segmented_view(1, &front, &depth, &mask),
+        segmented_view(2, &back, &back_depth, &back_mask),
+    );
+    let views = [(&a, shown), (&s, image_box(&back, &[POLE, SHADE]))];
+    let (out, record) = extend_to_floor_reach(&b, &views, 0.0, &GeometryParams::default());
+    let record = record.expect("a record");
+    assert_eq!(record.views[0].reaches_floor, None, "{record:?}");
+    assert_eq!(
+        record.views[0].below_edge,
+        Some(BelowEdge::Occluder),
+        "{record:?}"
+    );
+    assert_eq!(record.views[1].reaches_floor, Some(true), "{record:?}");
+    assert_eq!(out.min[2], 0.0, "{record:?}");
 }

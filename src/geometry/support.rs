@@ -150,6 +150,14 @@ pub struct SupportParams {
     /// the floor when every view's 2D box says the object reaches it
     /// ([`super::floor_reach`]: a floor lamp's pole, thinner than a depth pixel).
     pub floor_reach: bool,
+    /// When the bottom is still where the points end, lower it to where the chosen view's
+    /// 2D box ends at the object's distance ([`super::floor_reach::lower_to_box_edge`]: a
+    /// lamp's pole hidden behind a desk).
+    pub box_edge: bool,
+    /// Least share of the chosen view's box height below the object's lowest measured
+    /// pixel for `box_edge` to move the bottom (a detector's box overshoots its object by a
+    /// few per cent of its size; a pole or legs depth missed are a large part of it).
+    pub box_edge_unmeasured: f64,
 }
 
 impl SupportParams {
@@ -254,6 +262,8 @@ impl Default for SupportParams {
             room_wall_colour: true,
             hidden_base: true,
             floor_reach: true,
+            box_edge: true,
+            box_edge_unmeasured: 0.2,
         }
     }
 }
