@@ -22,9 +22,11 @@
 //! about as deep as it is wide. A view whose box ends on the image's lower border (the
 //! object is cut there), whose camera looks too far off upright, or whose line of sight
 //! does not go down says nothing; a view whose line meets the floor elsewhere vetoes the
-//! move, unless the box's lower edge lies on a surface nearer than the object (a desk
-//! before a lamp's pole): the box then ends where the object is hidden, not where it ends,
-//! and the view says nothing.
+//! move, unless the box's lower edge lies on a surface nearer than the object and away
+//! from its measured bottom (a desk before a lamp's pole): the box then ends where the
+//! object is hidden, not where it ends, and the view says nothing. A nearer surface level
+//! with the measured bottom is what the object stands on (a table top before a cup's
+//! foot), and the view still vetoes.
 //!
 //! Where no view sets the bottom on the floor, the chosen view's box still says how far
 //! down the object reaches at least ([`lower_to_box_edge`]): the line of sight through its
@@ -143,9 +145,8 @@ pub struct EdgeReach {
 /// measured pixel and that line passes below the box's bottom by more than
 /// `support.layer`, and the edge does not lie on the object's support
 /// ([`BelowEdge::Support`]); never below the `floor` when it is known. The record is
-/// `None` when
-/// the view could not be read (a box on the image's lower border, a camera rolled too far,
-/// a line of sight that does not go down).
+/// `None` when the view could not be read (a box on the image's lower border, a camera
+/// rolled too far, a line of sight that does not go down).
 ///
 /// Unlike [`extend_to_floor_reach`] this reads one view, and it moves the bottom only as
 /// far as that view shows the object: an object whose lower part is hidden behind a nearer
