@@ -6,7 +6,7 @@
 
 use super::ensemble_boxes::BoxFrom;
 use crate::geometry::floor_reach::{
-    extend_to_floor_reach, lower_to_box_edge, EdgeReach, FloorReach,
+    extend_to_floor_reach, lower_to_box_edge, read_view, EdgeReach, FloorReach,
 };
 use crate::geometry::fusion::SegmentedView;
 use crate::geometry::hidden_base::{extend_to_hidden_base, HiddenBase};
@@ -87,12 +87,17 @@ pub fn complete(
         }
         None => b,
     };
-    match v.anchor_box.filter(|_| params.support.box_edge) {
-        Some(bx) => {
-            let (b, edge) = lower_to_box_edge(&b, v.anchor, bx, floor, params);
-            record.edge = edge;
-            (b, record)
-        }
-        None => (b, record),
+    if let Some(bx) = v.anchor_box.filter(|_| params.support.box_edge) {
+        // The chosen view as floor reach read it, on this same box, when it did.
+        let read = record
+            .reach
+            .as_ref()
+            .and_then(|r| r.views.iter().find(|x| x.index == v.anchor.index))
+            .cloned()
+            .unwrap_or_else(|| read_view(v.anchor, bx, &b, floor, params));
+        let (b, edge) = lower_to_box_edge(&b, read, floor, params);
+        record.edge = edge;
+        return (b, record);
     }
+    (b, record)
 }

@@ -138,35 +138,33 @@ pub struct EdgeReach {
     pub view: ReachVerdict,
 }
 
-/// The box `b` with its bottom lowered to where the chosen view's 2D box `bbox` says the
-/// object reaches: the line of sight through the box's lower edge at the object's nearest
-/// measured distance ([`ReachVerdict::down_to`]), when at least
-/// `support.box_edge_unmeasured` of the box's height lies below the object's lowest
-/// measured pixel and that line passes below the box's bottom by more than
-/// `support.layer`, and the edge does not lie on the object's support
-/// ([`BelowEdge::Support`]); never below the `floor` when it is known. The record is
-/// `None` when the view could not be read (a box on the image's lower border, a camera
+/// The box `b` with its bottom lowered to where the chosen view's 2D box says the object
+/// reaches, from that view's reading `view` ([`read_view`] of the box on `b`): the line of
+/// sight through the box's lower edge at the object's nearest measured distance
+/// ([`ReachVerdict::down_to`]), when at least `support.box_edge_unmeasured` of the box's
+/// height lies below the object's lowest measured pixel and that line passes below the
+/// box's bottom by more than `support.layer`, and the edge does not lie on the object's
+/// support ([`BelowEdge::Support`]); never below the `floor` when it is known. The record
+/// is `None` when the view could not be read (a box on the image's lower border, a camera
 /// rolled too far, a line of sight that does not go down).
 ///
-/// Unlike [`extend_to_floor_reach`] this reads one view, and it moves the bottom only as
+/// Unlike [`extend_to_floor_reach`] this takes one view, and it moves the bottom only as
 /// far as that view shows the object: an object whose lower part is hidden behind a nearer
 /// surface (a lamp's pole behind a desk) still reaches at least where its image ends.
 pub fn lower_to_box_edge(
     b: &Aabb,
-    view: &SegmentedView<'_>,
-    bbox: [f32; 4],
+    view: ReachVerdict,
     floor: Option<f64>,
     params: &GeometryParams,
 ) -> (Aabb, Option<EdgeReach>) {
-    let verdict = read_view(view, bbox, b, floor, params);
-    let Some(down_to) = verdict.down_to else {
+    let Some(down_to) = view.down_to else {
         return (*b, None);
     };
     let to = floor.map_or(down_to, |f| down_to.max(f));
-    let enough = verdict
+    let enough = view
         .unmeasured
         .is_some_and(|u| u >= params.support.box_edge_unmeasured);
-    let on_support = verdict.below_edge == Some(BelowEdge::Support);
+    let on_support = view.below_edge == Some(BelowEdge::Support);
     let mut out = *b;
     if enough && !on_support && to < b.min[2] - params.support.layer {
         out.min[2] = to;
@@ -174,7 +172,7 @@ pub fn lower_to_box_edge(
     let record = EdgeReach {
         from: b.min[2],
         to: out.min[2],
-        view: verdict,
+        view,
     };
     (out, Some(record))
 }
@@ -206,7 +204,9 @@ pub fn stand_on_floor(b: &Aabb, floor: f64, max_gap: f64) -> (Aabb, Option<Floor
     (out, Some(record))
 }
 
-fn read_view(
+/// What `view`'s 2D box `bbox` says of where the object whose box is `b` ends below (see
+/// the module documentation); the floor's verdict only when the `floor` is known.
+pub fn read_view(
     view: &SegmentedView<'_>,
     bbox: [f32; 4],
     b: &Aabb,

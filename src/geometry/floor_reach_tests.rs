@@ -145,7 +145,7 @@ fn a_cup_on_a_table_with_a_loose_box_stays_on_the_table() {
     // The table top before the cup's foot is what it stands on: the box's edge, two
     // pixels into it, does not lower the bottom (at this resolution that is 40 % of the
     // cup's image).
-    let (out, edge) = lower_to_box_edge(&b, &v, loose, Some(0.0), &GeometryParams::default());
+    let (out, edge) = lower(&b, &v, loose, &GeometryParams::default());
     assert_eq!(out, b, "{edge:?}");
 }
 
@@ -168,6 +168,24 @@ fn pole_bottom_row(cam: &FrameCamera, world: &[Block], pole: usize) -> f64 {
         .fold(f64::NAN, f64::max)
 }
 
+/// The detector's box of what `cam` shows of the lamp in `world` (its pole second to
+/// last): the shade's box down to the pole's lowest row in view.
+fn shown_box(cam: &FrameCamera, world: &[Block]) -> [f32; 4] {
+    let mut shown = image_box(cam, &[SHADE]);
+    shown[3] = pole_bottom_row(cam, world, world.len() - 2) as f32;
+    shown
+}
+
+/// [`lower_to_box_edge`] on `v`'s reading of `bbox`.
+fn lower(
+    b: &Aabb,
+    v: &SegmentedView<'_>,
+    bbox: [f32; 4],
+    gp: &GeometryParams,
+) -> (Aabb, Option<EdgeReach>) {
+    lower_to_box_edge(b, read_view(v, bbox, b, Some(0.0), gp), Some(0.0), gp)
+}
+
 fn lamp_behind_desk() -> Vec<Block> {
     let mut w = room_slabs(4.0, 4.0, 3.0);
     w.extend([DESK, POLE, SHADE]);
@@ -177,18 +195,15 @@ fn lamp_behind_desk() -> Vec<Block> {
 #[test]
 fn a_lamp_whose_pole_is_hidden_behind_a_desk_reaches_down_to_where_its_box_ends() {
     let world = lamp_behind_desk();
-    let pole = world.len() - 2;
     let cam = front_camera();
     let (depth, mask) = first_surface_mask(&cam, &world, SHADE, RANGE);
     let b = seen_box(&cam, &depth, &mask);
     assert!(b.min[2] > 1.2, "only the shade was measured: {b:?}");
     // What shows of the lamp: the shade and the pole down to the desk's far edge.
-    let bottom = pole_bottom_row(&cam, &world, pole);
-    let mut shown = image_box(&cam, &[SHADE]);
-    shown[3] = bottom as f32;
+    let shown = shown_box(&cam, &world);
     let v = segmented_view(6, &cam, &depth, &mask);
     let gp = GeometryParams::default();
-    let (out, edge) = lower_to_box_edge(&b, &v, shown, Some(0.0), &gp);
+    let (out, edge) = lower(&b, &v, shown, &gp);
     let edge = edge.expect("the view is read");
     assert_eq!(edge.view.below_edge, Some(BelowEdge::Occluder), "{edge:?}");
     // The line of sight over the desk's far edge meets the pole 0.57 m up; at the shade's
@@ -200,18 +215,17 @@ fn a_lamp_whose_pole_is_hidden_behind_a_desk_reaches_down_to_where_its_box_ends(
         (b.max, b.min[0], b.min[1])
     );
     // The box of the shade alone holds nothing depth missed.
-    let (out, edge) = lower_to_box_edge(&b, &v, image_box(&cam, &[SHADE]), Some(0.0), &gp);
+    let (out, edge) = lower(&b, &v, image_box(&cam, &[SHADE]), &gp);
     assert_eq!(out, b, "{edge:?}");
     // Turned off by the share of the box that must be unmeasured.
     let mut strict = gp.clone();
     strict.support.box_edge_unmeasured = 1.01;
-    assert_eq!(lower_to_box_edge(&b, &v, shown, Some(0.0), &strict).0, b);
+    assert_eq!(lower(&b, &v, shown, &strict).0, b);
 }
 
 #[test]
 fn a_box_that_ends_on_a_nearer_desk_does_not_veto_a_view_that_sees_the_foot() {
     let world = lamp_behind_desk();
-    let pole = world.len() - 2;
     let front = front_camera();
     let (depth, mask) = first_surface_mask(&front, &world, SHADE, RANGE);
     // The shade's box, as the views fused would give it.
@@ -219,8 +233,7 @@ fn a_box_that_ends_on_a_nearer_desk_does_not_veto_a_view_that_sees_the_foot() {
         min: SHADE.0,
         max: SHADE.1,
     };
-    let mut shown = image_box(&front, &[SHADE]);
-    shown[3] = pole_bottom_row(&front, &world, pole) as f32;
+    let shown = shown_box(&front, &world);
     let back = camera([2.0, 3.8, 1.4], [2.0, 2.5, 0.8]);
     let (back_depth, back_mask) = first_surface_mask(&back, &world, SHADE, RANGE);
     let (a, s) = (
