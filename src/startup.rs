@@ -332,38 +332,68 @@ fn build_vlm_grounder(
 
 /// `grounder serve`.
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    // Listen for SIGTERM and Ctrl-C before anything runs: a stop that comes while the
+    // service starts (the address printed, a job already claimed) is then graceful too,
+    // where it would otherwise kill the process or be lost.
+    let stop = StopSignals::listen();
     let cfg = Config::load(&args)?;
     let app = Application::build(cfg).await?;
     let addr = app.local_addr()?;
     println!("listening on http://{addr}");
-    app.run_until(shutdown_signal()).await
+    app.run_until(stop.recv()).await
 }
 
-async fn shutdown_signal() {
-    // A handler that cannot be installed must not end the service: log it and wait on
-    // the other signal (or forever).
-    let ctrl_c = async {
+/// The process's stop signals, listened for from the moment this is made.
+struct StopSignals {
+    #[cfg(unix)]
+    term: Option<tokio::signal::unix::Signal>,
+    #[cfg(unix)]
+    int: Option<tokio::signal::unix::Signal>,
+}
+
+impl StopSignals {
+    fn listen() -> Self {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            // A handler that cannot be installed must not end the service: log it and
+            // wait on the other signal (or forever).
+            let listen = |kind: SignalKind, name: &str| match signal(kind) {
+                Ok(s) => Some(s),
+                Err(e) => {
+                    tracing::error!("cannot listen for {name}, serving on: {e}");
+                    None
+                }
+            };
+            Self {
+                term: listen(SignalKind::terminate(), "SIGTERM"),
+                int: listen(SignalKind::interrupt(), "Ctrl-C"),
+            }
+        }
+        #[cfg(not(unix))]
+        Self {}
+    }
+
+    async fn recv(self) {
+        #[cfg(unix)]
+        {
+            async fn next(s: Option<tokio::signal::unix::Signal>) {
+                match s {
+                    Some(mut s) => {
+                        s.recv().await;
+                    }
+                    None => std::future::pending::<()>().await,
+                }
+            }
+            tokio::select! { _ = next(self.term) => {}, _ = next(self.int) => {} }
+        }
+        #[cfg(not(unix))]
         if let Err(e) = tokio::signal::ctrl_c().await {
             tracing::error!("cannot listen for Ctrl-C, serving on: {e}");
             std::future::pending::<()>().await;
         }
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(e) => {
-                tracing::error!("cannot listen for SIGTERM, serving on: {e}");
-                std::future::pending::<()>().await
-            }
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
-    tracing::info!("shutting down: running jobs will be resumed at next start");
+        tracing::info!("shutting down: running jobs will be resumed at next start");
+    }
 }
 
 #[cfg(test)]

@@ -26,10 +26,6 @@ pub fn start(data_dir: &Path, env: &[(&str, &str)]) -> Server {
     start_server(data_dir, &all)
 }
 
-pub fn kill(child: &mut std::process::Child, sig: &str) {
-    signal(child, sig)
-}
-
 /// A tiny scene with 16-bit instance masks and labels (the oracle detector needs them).
 pub fn scene_with_masks(frames: usize) -> Vec<u8> {
     let mut files = tiny_scene_files(frames);
@@ -168,14 +164,14 @@ async fn sigkill_at_random_points_leaves_nothing_orphaned_lost_or_stuck() {
         ));
         let wait = rng.gen_range(150..1500);
         tokio::time::sleep(Duration::from_millis(wait)).await;
-        kill(&mut s.child, "-KILL");
+        s.signal("-KILL");
         t.abort();
         let _ = t.await;
         println!("round {round}: SIGKILL after {wait} ms");
     }
     let mut s = start(&data, &[]);
     settle(&s.base).await;
-    kill(&mut s.child, "-TERM");
+    s.signal("-TERM");
 
     let store = grounder::store::Store::open(&data).await.unwrap();
     let ok: String = sqlx::query_scalar("PRAGMA integrity_check")
@@ -287,7 +283,7 @@ async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
             (r.status().as_u16(), r.json::<Value>().await.unwrap())
         };
         assert_eq!((st, j["status"].as_str()), (200, Some("indexing")), "{j}");
-        kill(&mut s.child, "-KILL");
+        s.signal("-KILL");
     }
     let mut s = start(&data, &slow);
     let j: Value = get_json_at(&c, &format!("{}/v1/scenes/{id}", s.base)).await;
@@ -300,5 +296,5 @@ async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
         (Some("failed"), Some("scene_failed")),
         "{job}"
     );
-    kill(&mut s.child, "-TERM");
+    s.signal("-TERM");
 }

@@ -85,11 +85,11 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
         );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    signal(&mut replicas[1].child, "-KILL");
+    replicas[1].signal("-KILL");
     let killed_at = Instant::now();
     let killed_wall = time::OffsetDateTime::now_utc();
     tokio::time::sleep(Duration::from_millis(400)).await;
-    signal(&mut replicas[2].child, "-TERM");
+    replicas[2].signal("-TERM");
 
     // Replica 0 finishes everything.
     let base = replicas[0].base.clone();

@@ -214,7 +214,7 @@ async fn a_worker_replica_takes_over_indexing_that_a_killed_replica_left() {
         "the worker took over a live indexer's scene"
     );
 
-    signal(&mut a.child, "-KILL");
+    a.signal("-KILL");
     let killed = Instant::now();
     let mut owners = std::collections::BTreeSet::new();
     let bound =

@@ -25,7 +25,11 @@ async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
 #[tokio::test]
 async fn killed_and_terminated_servers_resume_running_jobs() {
     let dir = tempfile::tempdir().unwrap();
-    let c = reqwest::Client::new();
+    // Every request is bounded: a server that stops answering fails the test, not the run.
+    let c = reqwest::Client::builder()
+        .timeout(Duration::from_secs(30))
+        .build()
+        .unwrap();
     let mut s = start(dir.path(), 1500);
     let sid = upload_tiny_scene_to(&c, &s.base, 3).await;
     let jid = submit_job(&c, &s.base, &sid, "the bed").await;
@@ -34,7 +38,7 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     assert_eq!(j["status"], "running");
 
     // SIGKILL mid-run: on restart the job runs again (attempt 2) and the queued one too.
-    signal(&mut s.child, "-KILL");
+    s.signal("-KILL");
     let mut s = start(dir.path(), 100);
     let j = wait_status(&c, &format!("{}/v1/jobs/{jid}", s.base), "succeeded").await;
     assert_eq!(
@@ -48,11 +52,16 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
 
     // SIGTERM mid-run: graceful; the job is left queued, not half-written, and the attempt
     // is not counted.
-    signal(&mut s.child, "-KILL");
+    s.signal("-KILL");
     let mut s = start(dir.path(), 3000);
     let tid = submit_job(&c, &s.base, &sid, "the lamp").await;
     wait_status(&c, &format!("{}/v1/jobs/{tid}", s.base), "running").await;
-    signal(&mut s.child, "-TERM");
+    s.signal("-TERM");
+    let log = s.log_tail();
+    assert!(
+        log.contains("queued again"),
+        "a graceful stop requeues: {log}"
+    );
     let store = grounder::store::Store::open(dir.path()).await.unwrap();
     let rec = store.get_job(&tid).await.unwrap().unwrap();
     assert_eq!(
@@ -68,23 +77,14 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
         if j["status"] != "running" {
             break;
         }
-        signal(&mut s.child, "-KILL");
+        s.signal("-KILL");
     }
     let mut s = start(dir.path(), 100);
-    let (_, j) = (
-        0,
-        c.get(format!("{}/v1/jobs/{tid}", s.base))
-            .send()
-            .await
-            .unwrap()
-            .json::<Value>()
-            .await
-            .unwrap(),
-    );
+    let j = get_json_at(&c, &format!("{}/v1/jobs/{tid}", s.base)).await;
     assert_eq!(
         (j["status"].as_str(), j["error"]["code"].as_str()),
         (Some("failed"), Some("too_many_attempts")),
         "{j}"
     );
-    signal(&mut s.child, "-TERM");
+    s.signal("-TERM");
 }

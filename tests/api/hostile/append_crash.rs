@@ -1,7 +1,7 @@
 //! A frame append killed between moving its files into the scene and committing their
 //! rows: the next start removes the files no row names, and the scene stays whole.
 
-use crate::crash::{kill, names, start};
+use crate::crash::{names, start};
 use crate::frames::more_frames;
 use crate::helpers::{tar_of, upload_tiny_scene_to};
 use serde_json::Value;
@@ -41,7 +41,7 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
         );
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
-    kill(&mut s.child, "-KILL");
+    s.signal("-KILL");
     let _ = pending.await;
     assert!(colour.join("1000.jpg").exists(), "killed inside the window");
 
@@ -63,8 +63,8 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
         .await
         .expect("append");
     assert_eq!(r.status().as_u16(), 200);
-    kill(&mut s.child, "-TERM");
+    s.signal("-TERM");
     let mut s = start(&data, &[("GROUNDER_DETECTOR", "none")]);
     assert_eq!(names(&colour).len(), 5, "{:?}", names(&colour));
-    kill(&mut s.child, "-TERM");
+    s.signal("-TERM");
 }
