@@ -13,7 +13,9 @@ use serde_norway::Value;
 use std::collections::{BTreeMap, HashSet};
 use std::time::{Duration, Instant};
 
-use crate::helpers::{get_json_at, pg, start_server, submit_job, upload_tiny_scene_to, Server};
+use crate::helpers::{
+    client, get_json_at, pg, start_server, submit_job, upload_tiny_scene_to, Server,
+};
 
 const COMPOSE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/deploy/compose.yaml");
 const DOCKERFILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/Dockerfile");
@@ -328,7 +330,7 @@ async fn the_compose_replicas_run_a_job_on_postgres_and_a_bucket() {
         .iter()
         .find(|(_, r, _)| *r == Role::Api)
         .expect("an api replica");
-    let http = reqwest::Client::new();
+    let http = client();
     let sid = upload_tiny_scene_to(&http, &api.base, 3).await;
     let id = submit_job(&http, &api.base, &sid, "the chair").await;
     let t = Instant::now();

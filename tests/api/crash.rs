@@ -54,7 +54,7 @@ struct Acked {
 
 /// Random traffic until aborted: uploads, jobs, deletes.
 async fn traffic(base: String, seed: u64, acked: Arc<Mutex<Acked>>, scene: Arc<Vec<u8>>) {
-    let c = reqwest::Client::new();
+    let c = client();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     loop {
         let known: Vec<String> = {
@@ -108,7 +108,7 @@ async fn traffic(base: String, seed: u64, acked: Arc<Mutex<Acked>>, scene: Arc<V
 
 /// Wait until no job is queued or running and no scene is indexing.
 async fn settle(base: &str) {
-    let c = reqwest::Client::new();
+    let c = client();
     let t = Instant::now();
     loop {
         let mut busy = false;
@@ -264,7 +264,7 @@ async fn a_scene_whose_indexing_keeps_killing_the_process_ends_failed() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     let slow = [("GROUNDER_DETECTOR", "oracle:delay_ms=400")];
-    let c = reqwest::Client::new();
+    let c = client();
     let mut s = start(&data, &slow);
     let id = upload_scene_to(&c, &s.base, scene_with_masks(8)).await;
     let jid = submit_job(&c, &s.base, &id, "the bed").await;

@@ -57,7 +57,7 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
     ];
     env.extend(extra.iter().map(|(k, v)| (k.as_str(), v.as_str())));
     let mut replicas: Vec<Server> = dirs.iter().map(|d| start_server(d, &env)).collect();
-    let c = reqwest::Client::new();
+    let c = client();
 
     let sid = upload_tiny_scene_to(&c, &replicas[0].base, 3).await;
     let mut ids = Vec::new();
@@ -172,7 +172,7 @@ async fn failover(server: &str, dirs: [&std::path::Path; 3], extra: &[(String, S
 async fn a_worker_replica_answers_only_its_health_endpoints() {
     let dir = tempfile::tempdir().unwrap();
     let s = start_server(dir.path(), &[("GROUNDER_ROLE", "worker")]);
-    let c = reqwest::Client::new();
+    let c = client();
     let r = c.get(format!("{}/healthz", s.base)).send().await.unwrap();
     assert_eq!(r.status().as_u16(), 200);
     let r = c.get(format!("{}/v1/scenes", s.base)).send().await.unwrap();

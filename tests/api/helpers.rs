@@ -63,7 +63,7 @@ impl TestApp {
         });
         TestApp {
             addr,
-            client: reqwest::Client::new(),
+            client: client(),
             data_dir,
             _dir: None,
             stop: Some(tx),
@@ -442,10 +442,20 @@ pub fn client_with_key(secret: &str) -> reqwest::Client {
         reqwest::header::AUTHORIZATION,
         format!("Bearer {secret}").parse().expect("header"),
     );
-    reqwest::Client::builder()
-        .default_headers(h)
-        .build()
-        .expect("client")
+    client_builder().default_headers(h).build().expect("client")
+}
+
+/// How long any test request may take, its body included: a server that stops answering
+/// fails the test that asked, instead of stalling the whole run.
+pub const REQUEST_PATIENCE: Duration = Duration::from_secs(120);
+
+/// A client whose every request is bounded by [`REQUEST_PATIENCE`].
+pub fn client() -> reqwest::Client {
+    client_builder().build().expect("client")
+}
+
+fn client_builder() -> reqwest::ClientBuilder {
+    reqwest::Client::builder().timeout(REQUEST_PATIENCE)
 }
 
 /// One Server-Sent Event as received.

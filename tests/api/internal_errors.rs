@@ -32,7 +32,7 @@ async fn a_failing_store_answers_a_generic_500_and_logs_the_cause_with_its_id() 
         let _ = std::fs::remove_dir_all(&scenes);
         std::fs::write(&scenes, b"not a folder").unwrap();
         let (tar, _) = crate::agent_fixture::scene_tar();
-        let r = reqwest::Client::new()
+        let r = crate::helpers::client()
             .post(format!("{base}/v1/scenes"))
             .header("Content-Type", "application/x-tar")
             .body(std::fs::read(tar).unwrap())

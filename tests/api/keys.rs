@@ -163,7 +163,7 @@ async fn two_keys_cannot_see_each_others_scenes_or_jobs() {
 async fn without_a_valid_key_requests_are_401_and_metrics_need_an_admin() {
     let k = keyed(None, None).await;
     let app = &k.app;
-    let plain = reqwest::Client::new();
+    let plain = client();
     for path in ["/v1/scenes", "/v1/jobs", "/v1/jobs/x", "/metrics"] {
         let r = plain.get(app.url(path)).send().await.unwrap();
         assert_eq!(r.status().as_u16(), 401, "{path}");

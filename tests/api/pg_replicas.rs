@@ -177,12 +177,7 @@ async fn a_worker_replica_takes_over_indexing_that_a_killed_replica_left() {
     let mut a = start("all");
     let _worker = start("worker");
     let store = Store::connect(&url, dir.path()).await.unwrap();
-    let sid = upload_scene_to(
-        &reqwest::Client::new(),
-        &a.base,
-        crate::crash::scene_with_masks(20),
-    )
-    .await;
+    let sid = upload_scene_to(&client(), &a.base, crate::crash::scene_with_masks(20)).await;
     let state = || async {
         let row: (String, Option<String>, i64) =
             sqlx::query_as("SELECT status, index_owner, index_done FROM scenes WHERE id = $1")

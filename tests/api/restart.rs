@@ -25,11 +25,7 @@ async fn wait_status(c: &reqwest::Client, url: &str, want: &str) -> Value {
 #[tokio::test]
 async fn killed_and_terminated_servers_resume_running_jobs() {
     let dir = tempfile::tempdir().unwrap();
-    // Every request is bounded: a server that stops answering fails the test, not the run.
-    let c = reqwest::Client::builder()
-        .timeout(Duration::from_secs(30))
-        .build()
-        .unwrap();
+    let c = client();
     let mut s = start(dir.path(), 1500);
     let sid = upload_tiny_scene_to(&c, &s.base, 3).await;
     let jid = submit_job(&c, &s.base, &sid, "the bed").await;

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use grounder::storage::Storage;
 
-use crate::helpers::{tar_of, test_config, tiny_scene_files, TestApp};
+use crate::helpers::{client, tar_of, test_config, tiny_scene_files, TestApp};
 
 /// A moto server on a free port, killed when dropped.
 pub(crate) struct Moto {
@@ -39,7 +39,7 @@ impl Moto {
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start python3 -m moto.server ({e}); run .ci/run, which installs moto[server]"));
         let mut moto = Moto { child, port };
-        let client = reqwest::Client::new();
+        let client = client();
         for _ in 0..200 {
             if let Ok(Some(status)) = moto.child.try_wait() {
                 panic!("the moto server exited at once ({status}): is moto[server] installed? .ci/run installs it");
@@ -71,7 +71,7 @@ impl Moto {
     }
 
     pub(crate) async fn create_bucket(&self, name: &str) {
-        let r = reqwest::Client::new()
+        let r = client()
             .put(format!("{}/{name}", self.endpoint()))
             .send()
             .await

@@ -3,7 +3,7 @@
 
 use crate::crash::{names, start};
 use crate::frames::more_frames;
-use crate::helpers::{tar_of, upload_tiny_scene_to};
+use crate::helpers::{client, tar_of, upload_tiny_scene_to};
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
@@ -17,7 +17,7 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
         ("GROUNDER_TEST_STEP_PAUSE_MS", "1500"),
     ];
     let mut s = start(&data, &env);
-    let c = reqwest::Client::new();
+    let c = client();
     let id = upload_tiny_scene_to(&c, &s.base, 3).await;
     let colour = data.join("scenes").join(&id).join("color");
     let before = names(&colour);
@@ -26,7 +26,7 @@ async fn an_append_killed_between_files_and_rows_leaves_no_stray_files() {
     let url = format!("{}/v1/scenes/{id}/frames", s.base);
     let body = tar_of(&more_frames(&[1000, 1020], 0.3), None);
     let pending = tokio::spawn(async move {
-        let _ = reqwest::Client::new()
+        let _ = client()
             .post(url)
             .header("content-type", "application/x-tar")
             .body(body)

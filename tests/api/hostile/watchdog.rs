@@ -1,7 +1,7 @@
 //! The watchdog: a worker that dies half-way through a job leaves no row `running`, the
 //! live-worker gauge counts it out, and `/readyz` is not ready once no worker is left.
 
-use crate::helpers::{submit_job, test_config, upload_tiny_scene_to};
+use crate::helpers::{client, submit_job, test_config, upload_tiny_scene_to};
 use grounder::startup::Application;
 use serde_json::Value;
 use std::time::{Duration, Instant};
@@ -31,7 +31,7 @@ async fn a_dead_worker_fails_its_job_and_makes_the_service_not_ready() {
             })
             .await;
     });
-    let c = reqwest::Client::new();
+    let c = client();
     let text = |p: &'static str| {
         let c = c.clone();
         let url = format!("{base}{p}");
