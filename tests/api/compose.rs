@@ -13,9 +13,8 @@ use serde_norway::Value;
 use std::collections::{BTreeMap, HashSet};
 use std::time::{Duration, Instant};
 
-use crate::helpers::{
-    client, get_json_at, pg, start_server, submit_job, upload_tiny_scene_to, Server,
-};
+use crate::helpers::{client, get_json_at, pg, submit_job, upload_tiny_scene_to};
+use crate::spawned::{start_server, Server};
 
 const COMPOSE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/deploy/compose.yaml");
 const DOCKERFILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/Dockerfile");

@@ -6,6 +6,7 @@
 //! The randomness is seeded (printed; `GROUNDER_CRASH_SEED=N` replays a run).
 
 use crate::helpers::*;
+use crate::spawned::{start_server, Server};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::Value;

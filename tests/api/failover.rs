@@ -6,6 +6,7 @@
 //! the kill, and none is lost.
 
 use crate::helpers::*;
+use crate::spawned::{start_server, Server};
 use serde_json::Value;
 use std::time::{Duration, Instant};
 

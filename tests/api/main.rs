@@ -31,6 +31,7 @@ mod postgres;
 mod problems;
 mod restart;
 mod scenes;
+mod spawned;
 mod storage;
 mod storage_timeouts;
 mod viewer;

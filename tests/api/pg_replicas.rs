@@ -5,6 +5,7 @@
 //! taken over by a worker replica, one indexer at a time.
 
 use crate::helpers::*;
+use crate::spawned::start_server;
 use grounder::store::{idempotency::Begin, Store};
 use std::path::Path;
 use std::time::{Duration, Instant, SystemTime};

@@ -1,6 +1,7 @@
 //! The real binary, killed and restarted: running jobs are resumed, never lost.
 
 use crate::helpers::*;
+use crate::spawned::{start_server, Server};
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
