@@ -85,3 +85,18 @@ async fn killed_and_terminated_servers_resume_running_jobs() {
     );
     s.signal("-TERM");
 }
+
+/// A stop that comes the moment the service has printed its address (an orchestrator
+/// stopping a replica that has just started) is a graceful one: the process ends on its
+/// own with status 0, not killed by the signal, and logs that it is shutting down.
+#[test]
+fn a_sigterm_as_soon_as_the_address_is_printed_is_a_graceful_stop() {
+    for _ in 0..5 {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = start(dir.path(), 100);
+        let status = s.signal("-TERM");
+        let log = s.log_tail();
+        assert!(status.success(), "{status}; log:\n{log}");
+        assert!(log.contains("shutting down"), "{log}");
+    }
+}

@@ -33,10 +33,11 @@ impl Server {
             .unwrap_or_default()
     }
 
-    /// Send `sig` (e.g. "-KILL", "-TERM") and wait for the process to exit; a server still
+    /// Send `sig` (e.g. "-KILL", "-TERM") and wait for the process to exit (its status is
+    /// returned); a server still
     /// running [`EXIT_PATIENCE`] later is killed and the test fails with its log tail (a
     /// shutdown that hangs must fail the test, not stall the whole run).
-    pub fn signal(&mut self, sig: &str) {
+    pub fn signal(&mut self, sig: &str) -> std::process::ExitStatus {
         let pid = self.child.id().to_string();
         std::process::Command::new("kill")
             .args([sig, &pid])
@@ -45,10 +46,10 @@ impl Server {
         let t = Instant::now();
         loop {
             match self.child.try_wait() {
-                Ok(Some(_)) => {
+                Ok(Some(status)) => {
                     // The log reader catches up with what the process wrote before it ended.
                     let _ = self.log_read.recv_timeout(Duration::from_secs(10));
-                    return;
+                    return status;
                 }
                 Ok(None) if t.elapsed() < EXIT_PATIENCE => {
                     std::thread::sleep(Duration::from_millis(10))
