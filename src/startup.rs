@@ -335,12 +335,24 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     // Listen for SIGTERM and Ctrl-C before anything runs: a stop that comes while the
     // service starts (the address printed, a job already claimed) is then graceful too,
     // where it would otherwise kill the process or be lost.
-    let stop = StopSignals::listen();
+    let mut stop = StopSignals::listen();
     let cfg = Config::load(&args)?;
-    let app = Application::build(cfg).await?;
+    // A stop during start-up ends it there, as a kill would (everything start-up does is
+    // resumed by the next start).
+    let app = tokio::select! {
+        app = Application::build(cfg) => app?,
+        () = stop.recv() => {
+            tracing::info!("stopped while starting");
+            return Ok(());
+        }
+    };
     let addr = app.local_addr()?;
     println!("listening on http://{addr}");
-    app.run_until(stop.recv()).await
+    app.run_until(async move {
+        stop.recv().await;
+        tracing::info!("shutting down: running jobs will be resumed at next start");
+    })
+    .await
 }
 
 /// The process's stop signals, listened for from the moment this is made.
@@ -374,25 +386,25 @@ impl StopSignals {
         Self {}
     }
 
-    async fn recv(self) {
+    /// The first stop signal (pending forever when none could be listened for).
+    async fn recv(&mut self) {
         #[cfg(unix)]
         {
-            async fn next(s: Option<tokio::signal::unix::Signal>) {
+            async fn next(s: &mut Option<tokio::signal::unix::Signal>) {
                 match s {
-                    Some(mut s) => {
+                    Some(s) => {
                         s.recv().await;
                     }
                     None => std::future::pending::<()>().await,
                 }
             }
-            tokio::select! { _ = next(self.term) => {}, _ = next(self.int) => {} }
+            tokio::select! { _ = next(&mut self.term) => {}, _ = next(&mut self.int) => {} }
         }
         #[cfg(not(unix))]
         if let Err(e) = tokio::signal::ctrl_c().await {
             tracing::error!("cannot listen for Ctrl-C, serving on: {e}");
             std::future::pending::<()>().await;
         }
-        tracing::info!("shutting down: running jobs will be resumed at next start");
     }
 }
 
