@@ -368,9 +368,14 @@ pub async fn get(
         if job.status.is_terminal() {
             break (job, trace);
         }
-        match tokio::time::timeout_at(deadline, rx.changed()).await {
-            Ok(Ok(())) => continue,
-            _ => break (job, trace),
+        // A stopping service answers with the state it has: the graceful stop waits for
+        // the requests in flight, and this one would otherwise hold it up to N seconds.
+        tokio::select! {
+            r = tokio::time::timeout_at(deadline, rx.changed()) => match r {
+                Ok(Ok(())) => continue,
+                _ => break (job, trace),
+            },
+            _ = state.store.events.closing.cancelled() => break (job, trace),
         }
     };
     let body = job_body(&state, job, trace).await?;

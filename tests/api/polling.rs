@@ -160,3 +160,36 @@ async fn a_batch_of_queries_makes_one_job_each_in_order() {
     );
     app.stop().await;
 }
+
+/// A `Prefer: wait` in flight when the service stops gracefully is answered at once with the
+/// job as it stands, rather than holding the stop until the job ends or N seconds pass.
+#[tokio::test]
+async fn a_graceful_stop_answers_a_waiting_poll_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path().to_path_buf());
+    cfg.pipeline = "test:delay_ms=10000".into();
+    let app = TestApp::spawn_with(cfg).await;
+    let sid = app.upload_tiny_scene(3).await;
+    let id = app.submit_job(&sid, "the lamp").await;
+    app.wait_status(&id, "running", Duration::from_secs(10))
+        .await
+        .expect("the job runs");
+    let poll = app
+        .client
+        .get(app.url(&format!("/v1/jobs/{id}")))
+        .header("prefer", "wait=30")
+        .send();
+    let poll = tokio::spawn(poll);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let stopping = Instant::now();
+    app.stop().await;
+    let stopped = stopping.elapsed();
+    let r = poll.await.unwrap().expect("an answer");
+    assert_eq!(r.status().as_u16(), 200);
+    let job: Value = r.json().await.unwrap();
+    assert_eq!(job["status"], "running", "the job as it stood: {job}");
+    assert!(
+        stopped < Duration::from_secs(5),
+        "the stop took {stopped:?}"
+    );
+}
