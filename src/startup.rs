@@ -350,7 +350,17 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     println!("listening on http://{addr}");
     app.run_until(async move {
         stop.recv().await;
-        tracing::info!("shutting down: running jobs will be resumed at next start");
+        tracing::info!(
+            "shutting down: running jobs will be resumed at next start (a second stop signal ends the process at once)"
+        );
+        // The graceful stop waits for the requests in flight (a slow upload, say); a second
+        // signal does not wait: it ends the process as a kill would, and the next start
+        // resumes what was running.
+        tokio::spawn(async move {
+            stop.recv().await;
+            tracing::warn!("a second stop signal: exiting now");
+            std::process::exit(1);
+        });
     })
     .await
 }

@@ -100,3 +100,32 @@ fn a_sigterm_as_soon_as_the_address_is_printed_is_a_graceful_stop() {
         assert!(log.contains("shutting down"), "{log}");
     }
 }
+
+/// A graceful stop waits for the requests in flight (here an upload whose body stalls); a
+/// second SIGTERM does not: the process ends at once, with status 1.
+#[tokio::test]
+async fn a_second_sigterm_ends_a_stop_that_waits_for_a_request() {
+    use tokio::io::AsyncWriteExt;
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = start(dir.path(), 100);
+    let addr = s.base.trim_start_matches("http://").to_string();
+    let mut slow = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    slow.write_all(
+        b"POST /v1/scenes HTTP/1.1\r\nHost: test\r\nContent-Type: application/x-tar\r\nContent-Length: 100000\r\n\r\n",
+    )
+    .await
+    .unwrap();
+    slow.write_all(&[0u8; 512]).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    s.send("-TERM");
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    assert!(
+        s.child.try_wait().unwrap().is_none(),
+        "the graceful stop waits for the upload in flight"
+    );
+    let status = s.signal("-TERM");
+    let log = s.log_tail();
+    assert_eq!(status.code(), Some(1), "{status}; log:\n{log}");
+    assert!(log.contains("a second stop signal"), "{log}");
+    drop(slow);
+}

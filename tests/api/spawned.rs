@@ -33,16 +33,21 @@ impl Server {
             .unwrap_or_default()
     }
 
-    /// Send `sig` (e.g. "-KILL", "-TERM") and wait for the process to exit (its status is
-    /// returned); a server still
-    /// running [`EXIT_PATIENCE`] later is killed and the test fails with its log tail (a
-    /// shutdown that hangs must fail the test, not stall the whole run).
-    pub fn signal(&mut self, sig: &str) -> std::process::ExitStatus {
+    /// Send `sig` (e.g. "-KILL", "-TERM") and go on at once.
+    pub fn send(&self, sig: &str) {
         let pid = self.child.id().to_string();
         std::process::Command::new("kill")
             .args([sig, &pid])
             .status()
             .expect("kill");
+    }
+
+    /// Send `sig` (e.g. "-KILL", "-TERM") and wait for the process to exit (its status is
+    /// returned); a server still
+    /// running [`EXIT_PATIENCE`] later is killed and the test fails with its log tail (a
+    /// shutdown that hangs must fail the test, not stall the whole run).
+    pub fn signal(&mut self, sig: &str) -> std::process::ExitStatus {
+        self.send(sig);
         let t = Instant::now();
         loop {
             match self.child.try_wait() {
