@@ -396,7 +396,8 @@ impl StopSignals {
         Self {}
     }
 
-    /// The first stop signal (pending forever when none could be listened for).
+    /// The next stop signal (pending forever when none could be listened for): one listener
+    /// serves start-up, the graceful stop and the second signal.
     async fn recv(&mut self) {
         #[cfg(unix)]
         {

@@ -43,9 +43,9 @@ impl Server {
     }
 
     /// Send `sig` (e.g. "-KILL", "-TERM") and wait for the process to exit (its status is
-    /// returned); a server still
-    /// running [`EXIT_PATIENCE`] later is killed and the test fails with its log tail (a
-    /// shutdown that hangs must fail the test, not stall the whole run).
+    /// returned); a server still running [`EXIT_PATIENCE`] later fails the test with its log
+    /// tail, and is killed when dropped (a shutdown that hangs must fail the test, not stall
+    /// the whole run).
     pub fn signal(&mut self, sig: &str) -> std::process::ExitStatus {
         self.send(sig);
         let t = Instant::now();
@@ -60,8 +60,6 @@ impl Server {
                     std::thread::sleep(Duration::from_millis(10))
                 }
                 _ => {
-                    let _ = self.child.kill();
-                    let _ = self.child.wait();
                     panic!(
                         "the server at {} did not exit within {EXIT_PATIENCE:?} of kill {sig}; its log ends:\n{}",
                         self.base,
@@ -80,8 +78,8 @@ const EXIT_PATIENCE: Duration = Duration::from_secs(60);
 
 /// Start `grounder serve` on a free port and `data_dir`: the test pipeline (200 ms a job),
 /// no detector, one worker; `env` adds or overrides settings. Returns once it listens; a
-/// server that has not printed its address within [`EXIT_PATIENCE`] is killed and the test
-/// fails with its log.
+/// server that has not printed its address within [`EXIT_PATIENCE`] fails the test with its
+/// log (and is killed when dropped).
 pub fn start_server(data_dir: &std::path::Path, env: &[(&str, &str)]) -> Server {
     use std::io::BufRead;
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_grounder"));
@@ -129,8 +127,6 @@ pub fn start_server(data_dir: &std::path::Path, env: &[(&str, &str)]) -> Server 
     let line = match rx.recv_timeout(EXIT_PATIENCE) {
         Ok(Ok(line)) => line,
         other => {
-            let _ = server.child.kill();
-            let _ = server.child.wait();
             panic!(
                 "the server did not print its address ({other:?}); its log ends:\n{}",
                 server.log_tail()
