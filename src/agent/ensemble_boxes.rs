@@ -68,6 +68,23 @@ pub fn part_only(
     (partial && from == BoxFrom::Footprint).then_some(b)
 }
 
+/// View `i`'s box when it holds the whole object there, so that it may bound the object
+/// as the chosen box does (`geometry::bound`): the VLM's box of the whole object, and the
+/// view's matched detection when the view sees at least `detections` (`None`: never) of
+/// the chosen view's points (`seen`, the view search's visible fraction): a detector
+/// boxes what the view shows, less what hides there. A candidate may be a part or a merge
+/// of objects, and a footprint is the chosen view's part.
+pub fn whole_object_box(
+    view_boxes: &[(usize, [f32; 4], BoxFrom)],
+    i: usize,
+    detections: Option<f64>,
+    seen: f64,
+) -> Option<[f32; 4]> {
+    let &(_, b, from) = view_boxes.iter().find(|v| v.0 == i)?;
+    let detection = from == BoxFrom::Detection && detections.is_some_and(|m| seen >= m);
+    (from == BoxFrom::VlmBox || detection).then_some(b)
+}
+
 /// The context points support completion looks at: the chosen view's (`anchor`), then
 /// those of each view in `views` (index, context) that `kept` (by the fusion) and whose
 /// box is not the part only (`part_only`).
@@ -186,6 +203,27 @@ mod tests {
             });
             assert_eq!(ctx, want, "partial {partial}");
         }
+    }
+
+    #[test]
+    fn the_vlms_box_and_a_matched_detection_bound_the_object_a_candidate_does_not() {
+        let b = |k: f32| [k, k, k + 10.0, k + 10.0];
+        let vb = [
+            (1, b(1.0), BoxFrom::Detection),
+            (2, b(2.0), BoxFrom::Candidate),
+            (3, b(3.0), BoxFrom::Footprint),
+            (4, b(4.0), BoxFrom::VlmBox),
+        ];
+        let of = |detections, seen| -> Vec<_> {
+            (1..=5)
+                .map(|i| whole_object_box(&vb, i, detections, seen))
+                .collect()
+        };
+        let (some, vlm) = (Some(b(1.0)), Some(b(4.0)));
+        assert_eq!(of(Some(0.9), 0.95), [some, None, None, vlm, None]);
+        // A view that sees too little of the chosen view's points, or detections off.
+        assert_eq!(of(Some(0.9), 0.8), [None, None, None, vlm, None]);
+        assert_eq!(of(None, 1.0), [None, None, None, vlm, None]);
     }
 
     #[test]

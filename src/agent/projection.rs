@@ -336,6 +336,11 @@ pub async fn run(
         None
     };
     let rule = cp.partial.clone();
+    // How much of the chosen view's points each view sees (a detection bounds by it).
+    let seen: HashMap<usize, f64> = views
+        .iter()
+        .map(|v| (v.index, v.visible_fraction))
+        .collect();
     let (fusion, single, support, votes, fills, exports, [segment_ms, fuse_ms, support_ms]) =
         tokio::task::spawn_blocking(move || {
             use rayon::prelude::*;
@@ -388,16 +393,21 @@ pub async fn run(
             let part_only = |i: usize| super::ensemble_boxes::part_only(&vb, i, partial);
             let region =
                 |i: usize| part_only(i).filter(|_| params.consensus.footprints_vote_inside);
-            // The VLM's box of the whole object in a view bounds it as the chosen box
-            // does, when nothing hides part of the object there.
-            let vlm_box = |i: usize| vb.iter().find(|v| v.0 == i && v.2 == BoxFrom::VlmBox);
+            // The VLM's box of the whole object in a view, or the view's matched
+            // detection (`consensus.detection_bound`), bounds it as the chosen box does,
+            // when nothing hides part of the object there.
+            let c = &params.consensus;
+            let detections = c.detection_bound.then_some(c.detection_bound_seen);
+            let whole_box = |i: usize| {
+                super::ensemble_boxes::whole_object_box(&vb, i, detections, *seen.get(&i)?)
+            };
             let views: Vec<SegmentedView> = clouds
                 .iter()
                 .map(|(i, c)| {
                     let (camera, depth) = (&sc.frames[*i].camera, sc.frames[*i].depth.as_ref());
-                    let bound = vlm_box(*i).and_then(|v| {
+                    let bound = whole_box(*i).and_then(|v| {
                         let seen = partial_view(&c.mask, camera, depth, rule);
-                        view_bound(camera, v.1, &seen, rule, params)
+                        view_bound(camera, v, &seen, rule, params)
                     });
                     SegmentedView {
                         index: *i,
@@ -420,7 +430,14 @@ pub async fn run(
                 votes,
                 anchor_kept,
             } = fuse_segmented(anchor_view, &views, &frames, params);
-            let votes = json!(votes);
+            // The views whose box bounded the object (`mask_votes.outside_view_boxes`).
+            let bounding: Vec<String> = views
+                .iter()
+                .filter(|v| v.bound.is_some())
+                .map(|v| format!("{:05}", v.index))
+                .collect();
+            let mut votes = json!(votes);
+            votes["bounding_views"] = json!(bounding);
             let fuse_ms = ms(tf);
             let tsup = Instant::now();
             let kept = |i: usize| fusion.views.iter().any(|v| v.index == i && v.kept);

@@ -31,6 +31,7 @@ impl Method {
         g.consensus.mask_votes = false;
         g.consensus.free_space = false;
         g.consensus.anchor_box_bound = false;
+        g.consensus.detection_bound = false;
         g.depth_fill.enabled = false;
         g.layout.enabled = false;
         g.support.enabled = false;
@@ -56,7 +57,7 @@ mod tests {
         assert_eq!(g.chamfer_cover_threshold, 0.0);
         assert_eq!(g.cluster_voxel, 0.0);
         assert!(!g.consensus.mask_votes && !g.consensus.free_space);
-        assert!(!g.consensus.anchor_box_bound);
+        assert!(!g.consensus.anchor_box_bound && !g.consensus.detection_bound);
         assert!(!g.depth_fill.enabled && !g.layout.enabled && !g.support.enabled);
         assert!(!g.round_back.enabled);
         assert!(!a.candidates.enabled && !a.preselect_reseen);

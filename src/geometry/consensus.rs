@@ -51,6 +51,17 @@ pub struct ConsensusParams {
     /// ...widened by this share of the box's width and height on each side (a detector's
     /// or the VLM's box is a little tight or loose), and by the votes' pose tolerance.
     pub anchor_box_margin: f64,
+    /// Another view's detection box of the object (matched to the chosen view's points,
+    /// not a candidate's or the footprint's) bounds it as the chosen box does, when
+    /// nothing hides part of the object in that view: a close-up whose mask ran on over
+    /// the wall beside a flush door keeps what projects into the door's box seen from
+    /// across the room. Needs `anchor_box_bound`.
+    pub detection_bound: bool,
+    /// ...when that view sees at least this share of the chosen view's points (the view
+    /// search's `visible_fraction`): a detector boxes what it sees, and where something
+    /// hides part of what the chosen view saw (a sofa before the chair's back), the box
+    /// holds only the rest.
+    pub detection_bound_seen: f64,
     /// Run [`free_space_votes`] on the fused cloud with every usable frame.
     pub free_space: bool,
     /// Frames that must see past a point before it can be dropped.
@@ -69,6 +80,8 @@ impl Default for ConsensusParams {
             footprints_vote_inside: true,
             anchor_box_bound: true,
             anchor_box_margin: 0.1,
+            detection_bound: true,
+            detection_bound_seen: 0.9,
             free_space: true,
             min_seen_through: 2,
             max_carve_frames: 20,
