@@ -295,6 +295,7 @@ impl VlmGrounder {
             // Projection takes its compute slot itself: it lets it go while it waits for the
             // VLM (`view_box`).
             still_wanted(&ctx.cancel, "projection")?;
+            let attempt = Instant::now();
             let err = match projection::run(
                 self,
                 ctx,
@@ -323,7 +324,8 @@ impl VlmGrounder {
                 "reselection",
                 json!({"image_id": format!("{:05}", choice.frame_idx), "failure": err.code, "detail": err.detail}),
                 json!({"left_out": left_out.iter().map(|i| format!("{i:05}")).collect::<Vec<_>>(), "offered": pre.frames.len() - 1}),
-                Instant::now(),
+                // Its time is the projection that measured nothing (no step of its own).
+                attempt,
             )
             .await;
             let slot = self.compute_slot(ctx).await?;

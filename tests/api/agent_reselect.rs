@@ -47,6 +47,15 @@ async fn a_frame_whose_box_measured_nothing_is_left_out_and_the_vlm_chooses_agai
             again[0]["outputs"]["left_out"],
             serde_json::json!(["00000"])
         );
+        // Its time is that of the projection that measured nothing, its segmentation
+        // included.
+        let segmented = steps(&job, "segmentation");
+        let first = segmented[0]["ms"].as_f64().unwrap_or(f64::INFINITY);
+        assert!(
+            again[0]["ms"].as_f64() >= Some(first),
+            "{:#} {first}",
+            again[0]
+        );
         // The second image selection was shown grids without frame 0, made anew.
         let stitched = steps(&job, "stitching");
         assert_eq!(stitched.len(), 2, "{job:#}");
