@@ -430,7 +430,7 @@ pub async fn run(
                 votes,
                 anchor_kept,
             } = fuse_segmented(anchor_view, &views, &frames, params);
-            // The views whose box bounded the object (`mask_votes.outside_view_boxes`).
+            // The views whose box was a bound (`mask_votes.outside_view_boxes`).
             let bounding: Vec<String> = views
                 .iter()
                 .filter(|v| v.bound.is_some())
