@@ -30,7 +30,8 @@ use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::round_back::round_back;
 use crate::geometry::support::{extend_to_support, median_point};
 use crate::geometry::{
-    partial_view, snap_planar_to_wall, view_bound, Aabb, LayoutParams, Mask, RoomLayout,
+    hidden_sides, partial_view, snap_planar_to_wall, view_bound, Aabb, LayoutParams, Mask,
+    RoomLayout,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::CallBudget;
@@ -239,6 +240,14 @@ pub async fn run(
         &scene.frames[choice.frame_idx].depth,
         &cp.partial,
     );
+    // The sides of the chosen box a nearer surface crosses: the object may go on past them.
+    let anchor_sides = hidden_sides(
+        choice.bbox,
+        &anchor_mask,
+        &scene.frames[choice.frame_idx].camera,
+        &scene.frames[choice.frame_idx].depth,
+        &cp.partial,
+    );
     let views_take_candidates =
         cp.enabled && cp.in_views && (!cp.in_views_partial_only || anchor_partial.partial);
     let (mut view_boxes, computed) =
@@ -273,8 +282,8 @@ pub async fn run(
         let anchor_idx = choice.frame_idx;
         let (checked, trace, vbs, decoded) = tokio::task::spawn_blocking(move || {
             let cam = &vs.scene.frames[anchor_idx].camera;
-            let bound =
-                anchor_box.and_then(|b| view_bound(cam, b, &anchor_partial, &rule, &vs.params));
+            let bound = anchor_box
+                .and_then(|b| view_bound(cam, b, &anchor_partial, anchor_sides, &rule, &vs.params));
             let anchor = (&ap[..], bound.as_ref());
             let (checked, trace) = check_candidates(&vs, anchor, &footprints, &mut vbs, &decoded);
             (checked, trace, vbs, decoded)
@@ -376,8 +385,9 @@ pub async fn run(
             let af = &sc.frames[anchor_idx];
             // The box drawn on the chosen image (not a candidate's, which may be a part)
             // bounds what the other views may add.
-            let bound =
-                anchor_box.and_then(|b| view_bound(&af.camera, b, &anchor_partial, rule, params));
+            let bound = anchor_box.and_then(|b| {
+                view_bound(&af.camera, b, &anchor_partial, anchor_sides, rule, params)
+            });
             let anchor_view = SegmentedView {
                 index: anchor_idx,
                 camera: &af.camera,
@@ -407,7 +417,8 @@ pub async fn run(
                     let (camera, depth) = (&sc.frames[*i].camera, sc.frames[*i].depth.as_ref());
                     let bound = whole_box(*i).and_then(|v| {
                         let seen = partial_view(&c.mask, camera, depth, rule);
-                        view_bound(camera, v, &seen, rule, params)
+                        let sides = hidden_sides(v, &c.mask, camera, depth, rule);
+                        view_bound(camera, v, &seen, sides, rule, params)
                     });
                     SegmentedView {
                         index: *i,
@@ -534,7 +545,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "anchor_hidden_sides": anchor_sides, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

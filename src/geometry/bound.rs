@@ -29,17 +29,23 @@ pub struct ViewBound<'a> {
     /// bounded (in the image, the box still is: the object enters the frame through the
     /// box's side on the edge).
     pub open: bool,
+    /// Sides (left, top, right, bottom) past which the object may go on in the image,
+    /// hidden by a nearer surface (`sides`, see [`super::partial::hidden_sides`], at or
+    /// above `rule.min_side_occluded`): what projects beyond such a side is not bounded.
+    pub open_sides: [bool; 4],
 }
 
 /// The bound `bbox` (colour pixels of `camera`, as chosen) puts on its object, widened by
 /// `consensus.anchor_box_margin` of its size and the mask votes' pose tolerance; `None`
 /// when it puts none: switched off, a degenerate box, or `partial` finds a nearer surface
 /// along the mask's outline (`partial.occluded` at or above `rule.min_occluded`). A side
-/// within `rule.border_frac` of the image's width from the frame's edge makes it `open`.
+/// within `rule.border_frac` of the image's width from the frame's edge makes it `open`; a
+/// side that a nearer surface crosses (`sides`) is open by itself.
 pub fn view_bound<'a>(
     camera: &'a FrameCamera,
     bbox: [f32; 4],
     partial: &PartialView,
+    sides: [f64; 4],
     rule: &PartialParams,
     params: &GeometryParams,
 ) -> Option<ViewBound<'a>> {
@@ -67,6 +73,7 @@ pub fn view_bound<'a>(
         camera,
         bbox: [b[0] - mx, b[1] - my, b[2] + mx, b[3] + my],
         open: b[0] <= edge || b[1] <= edge || b[2] >= w - edge || b[3] >= h - edge,
+        open_sides: sides.map(|s| s >= rule.min_side_occluded),
     })
 }
 
@@ -84,8 +91,8 @@ pub fn box_lattice(b: [f64; 4], n: usize, inner: f64) -> impl Iterator<Item = (f
     (0..n).flat_map(move |j| (0..n).map(move |i| (b[0] + at(i) * w, b[1] + at(j) * h)))
 }
 
-/// `points` less those that project outside `bound`: into the image outside the box, or
-/// outside the image when the bound is not `open`. A point behind the camera is kept (the
+/// `points` less those that project outside `bound`: into the image outside the box (past
+/// a side that is not open), or outside the image when the bound is not `open`. A point behind the camera is kept (the
 /// bound does not speak for it), and so is every point when the pose is unusable.
 pub fn within_bound(points: &[Point3<f64>], bound: &ViewBound<'_>) -> Vec<Point3<f64>> {
     let Ok(to_cam) = bound.camera.out_to_cam() else {
@@ -97,7 +104,11 @@ pub fn within_bound(points: &[Point3<f64>], bound: &ViewBound<'_>) -> Vec<Point3
         .iter()
         .filter(|p| match k.project(&transform_point(&to_cam, p)) {
             Some((u, v, _)) => {
-                let in_box = u >= b[0] && u <= b[2] && v >= b[1] && v <= b[3];
+                let o = bound.open_sides;
+                let in_box = (u >= b[0] || o[0])
+                    && (v >= b[1] || o[1])
+                    && (u <= b[2] || o[2])
+                    && (v <= b[3] || o[3]);
                 let in_image = u >= 0.0 && u < w && v >= 0.0 && v < h;
                 in_box || (bound.open && !in_image)
             }
@@ -161,6 +172,7 @@ mod tests {
             &cam,
             [40.0, 30.0, 60.0, 50.0],
             &whole(),
+            [0.0; 4],
             &PartialParams::default(),
             &params(),
         );
@@ -186,6 +198,7 @@ mod tests {
             &cam,
             [40.0, 30.0, 100.0, 50.0],
             &whole(),
+            [0.0; 4],
             &PartialParams::default(),
             &params(),
         );
@@ -211,11 +224,35 @@ mod tests {
             ..whole()
         };
         let rule = PartialParams::default();
-        assert!(view_bound(&cam, bx, &hidden, &rule, &params()).is_none());
+        assert!(view_bound(&cam, bx, &hidden, [0.0; 4], &rule, &params()).is_none());
         let mut off = params();
         off.consensus.anchor_box_bound = false;
-        assert!(view_bound(&cam, bx, &whole(), &rule, &off).is_none());
+        assert!(view_bound(&cam, bx, &whole(), [0.0; 4], &rule, &off).is_none());
         let flat = [40.0, 30.0, 40.0, 50.0];
-        assert!(view_bound(&cam, flat, &whole(), &rule, &params()).is_none());
+        assert!(view_bound(&cam, flat, &whole(), [0.0; 4], &rule, &params()).is_none());
+    }
+
+    #[test]
+    fn a_hidden_side_lets_the_object_go_on_past_it_and_only_that_side() {
+        let cam = camera();
+        let bx = [40.0, 30.0, 60.0, 50.0];
+        let rule = PartialParams::default();
+        // A table's top crosses the bottom of the box, a few pixels of its left side are
+        // nearer too (depth noise).
+        let below = [0.1, 0.0, 0.0, 0.9];
+        let b = view_bound(&cam, bx, &whole(), below, &rule, &params()).expect("a bound");
+        assert_eq!(b.open_sides, [false, false, false, true]);
+        let pts = [
+            at(50.0, 70.0),
+            at(50.0, 10.0),
+            at(30.0, 40.0),
+            at(30.0, 70.0),
+        ];
+        // Below the box, the seat goes on; above, beside, and below-beside it does not.
+        assert_eq!(within_bound(&pts, &b), vec![pts[0]]);
+        let mut never = rule.clone();
+        never.min_side_occluded = 1.1;
+        let closed = view_bound(&cam, bx, &whole(), below, &never, &params()).expect("a bound");
+        assert!(within_bound(&pts, &closed).is_empty());
     }
 }

@@ -207,7 +207,7 @@ impl Shot {
         let b = crate::geometry::morph::bounds(&self.mask, 0)?.map(|v| v as f32);
         let pp = PartialParams::default();
         let seen = partial_view(&self.mask, &self.cam, &self.depth, &pp);
-        crate::geometry::view_bound(&self.cam, b, &seen, &pp, p)
+        crate::geometry::view_bound(&self.cam, b, &seen, [0.0; 4], &pp, p)
     }
 }
 

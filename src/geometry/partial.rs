@@ -33,6 +33,10 @@ pub struct PartialParams {
     pub min_occluded: f64,
     /// Share of the mask's pixels without a depth reading that makes it a part.
     pub min_missing: f64,
+    /// Share of a side of the object's box (just inside it) that a nearer surface must
+    /// cover for the object to go on past that side (see [`hidden_sides`]); above 1 no
+    /// side is ever open.
+    pub min_side_occluded: f64,
 }
 
 impl Default for PartialParams {
@@ -44,6 +48,7 @@ impl Default for PartialParams {
             occluder_per_m: 0.03,
             min_occluded: 0.1,
             min_missing: 0.25,
+            min_side_occluded: 0.3,
         }
     }
 }
@@ -159,6 +164,76 @@ pub fn partial_view(
     }
 }
 
+/// For each side of `bbox` (colour pixels of `camera`: left, top, right, bottom), the share
+/// of the depth readings along a line just inside it (an inset of 3 % of the box's size, at
+/// least 2 pixels) that lie nearer than the object by more than the occluder step. The
+/// object's depth is the 10th percentile of the readings under `mask` (its near part). A
+/// table top across a chair behind it crosses the chair's box: the chair may go on past
+/// that side, hidden, and the box does not bound it there. A door seen whole across the
+/// room has its own wall along its box's sides, at its depth. All zero without readings.
+pub fn hidden_sides(
+    bbox: [f32; 4],
+    mask: &Mask,
+    camera: &FrameCamera,
+    depth: &DepthMap,
+    params: &PartialParams,
+) -> [f64; 4] {
+    const SAMPLES: u32 = 64;
+    let (wd, hd) = (depth.width, depth.height);
+    let read = |x: f64, y: f64| {
+        let (dx, dy) = camera.depth_pixel_for_color(x.max(0.0), y.max(0.0));
+        (dx < wd && dy < hd)
+            .then(|| depth.get(dx, dy))
+            .filter(|d| *d != 0)
+            .map(|d| f64::from(d) / 1000.0)
+    };
+    let b = bbox.map(f64::from);
+    if !b.iter().all(|v| v.is_finite()) || b[2] <= b[0] || b[3] <= b[1] {
+        return [0.0; 4];
+    }
+    // The object's readings, on a grid of at most about 64 x 64 over the mask's box.
+    let Some([mx0, my0, mx1, my1]) = bounds(mask, 0) else {
+        return [0.0; 4];
+    };
+    let stride = ((mx1 - mx0).max(my1 - my0) / SAMPLES).max(1);
+    let mut zs: Vec<f64> = (my0..my1)
+        .step_by(stride as usize)
+        .flat_map(|y| (mx0..mx1).step_by(stride as usize).map(move |x| (x, y)))
+        .filter(|&(x, y)| mask.get(x, y))
+        .filter_map(|(x, y)| read(f64::from(x), f64::from(y)))
+        .collect();
+    if zs.is_empty() {
+        return [0.0; 4];
+    }
+    zs.sort_by(f64::total_cmp);
+    let z = zs[zs.len() / 10];
+    let step = params.occluder_step + params.occluder_per_m * z;
+    let (w, h) = (b[2] - b[0], b[3] - b[1]);
+    let (ix, iy) = ((0.03 * w).max(2.0), (0.03 * h).max(2.0));
+    let along = |k: u32, lo: f64, len: f64| lo + len * (f64::from(k) + 0.5) / f64::from(SAMPLES);
+    let side = |at: &dyn Fn(u32) -> (f64, f64)| {
+        let (mut seen, mut nearer) = (0usize, 0usize);
+        for k in 0..SAMPLES {
+            let (x, y) = at(k);
+            if let Some(d) = read(x, y) {
+                seen += 1;
+                nearer += usize::from(z - d > step);
+            }
+        }
+        if seen == 0 {
+            0.0
+        } else {
+            nearer as f64 / seen as f64
+        }
+    };
+    [
+        side(&|k| (b[0] + ix, along(k, b[1], h))),
+        side(&|k| (along(k, b[0], w), b[1] + iy)),
+        side(&|k| (b[2] - ix, along(k, b[1], h))),
+        side(&|k| (along(k, b[0], w), b[3] - iy)),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -268,5 +343,32 @@ mod tests {
             &PartialParams::default(),
         );
         assert!(!p.partial, "{p:?}");
+    }
+
+    #[test]
+    fn a_nearer_surface_across_a_side_of_the_box_opens_that_side() {
+        // The object at 2 m in the box [30, 20, 70, 60); a table's top at 1.2 m covers
+        // the columns left of x = 40 from row 30 down, crossing the box's left side.
+        let (mut mask, depth) = scene();
+        let whole = mask.clone();
+        let mut d = depth.data.to_vec();
+        for y in 30..80 {
+            for x in 0..40 {
+                d[(y * 100 + x) as usize] = 1200;
+                mask.set(x, y, false);
+            }
+        }
+        let table = DepthMap::new(100, 80, d);
+        let cam = camera(100, 80);
+        let rule = PartialParams::default();
+        let bx = [30.0, 20.0, 70.0, 60.0];
+        let sides = hidden_sides(bx, &mask, &cam, &table, &rule);
+        assert!(sides[0] > 0.6, "{sides:?}");
+        assert!(sides[3] > 0.15 && sides[3] < 0.3, "{sides:?}");
+        assert_eq!((sides[1], sides[2]), (0.0, 0.0), "{sides:?}");
+        // Seen whole before its wall, no side is hidden; nor without the object's depth.
+        assert_eq!(hidden_sides(bx, &whole, &cam, &depth, &rule), [0.0; 4]);
+        let empty = Mask::new(100, 80);
+        assert_eq!(hidden_sides(bx, &empty, &cam, &table, &rule), [0.0; 4]);
     }
 }
