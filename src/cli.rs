@@ -30,6 +30,8 @@ pub enum Command {
     Detect(crate::vision::cli::DetectArgs),
     /// Draw the class-agnostic object candidates of a scene directory's frames.
     Candidates(crate::vision::candidates_cli::CandidatesArgs),
+    /// Segment one box in one frame of a scene directory: an overlay PNG and a JSON line.
+    Segment(crate::vision::segment_cli::SegmentArgs),
     /// Serve an OpenAI-compatible chat API that answers from ground truth.
     OracleVlm(crate::eval::cli::OracleVlmArgs),
     /// Evaluate the service on an annotated dataset.
@@ -76,6 +78,7 @@ pub fn main() -> ExitCode {
             Command::RetrievalBench(a) => done(crate::stitch::cli::run_retrieval_bench(a).await),
             Command::Detect(a) => done(crate::vision::cli::run(a)),
             Command::Candidates(a) => done(crate::vision::candidates_cli::run(a)),
+            Command::Segment(a) => done(crate::vision::segment_cli::run(a)),
             Command::OracleVlm(a) => done(crate::eval::cli::run_oracle_vlm(a).await),
             Command::Eval(a) => done(crate::eval::cli::run_eval(a).await),
             Command::Convert(a) => done(crate::eval::cli::run_convert(a)),

@@ -27,6 +27,7 @@ pub mod depth_seg;
 pub mod oracle;
 pub mod runtime;
 pub mod sam;
+pub mod segment_cli;
 pub mod synonyms;
 pub mod yolo;
 

@@ -21,6 +21,7 @@ mod viewer;
 mod vision_centernet;
 mod vision_depth_seg;
 mod vision_sam;
+mod vision_segment_cli;
 mod vision_support;
 mod vision_yolo;
 mod vlm_client;

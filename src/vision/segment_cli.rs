@@ -1,0 +1,116 @@
+//! `grounder segment`: one box in one frame of a scene directory, segmented as the
+//! pipeline's segmenter does it, written as an overlay PNG and described as one JSON line
+//! (the mask's size and box, and the evidence that the view saw a part: see
+//! `geometry::partial`). For finding out why a view's mask is what it is without a job.
+//!
+//! The frame's own depth is used: the service first completes the chosen view's missing
+//! readings from the other frames (`agent.geometry.depth_fill`), which this does not.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use image::Rgb;
+use nalgebra::Matrix4;
+
+use super::{build_segmenter, SegmentInput, VisionConfig};
+use crate::geometry::morph::bounds;
+use crate::geometry::{hidden_sides, partial_view, FrameCamera, PartialParams};
+use crate::scene::{format, import, model::decompress_depth};
+
+/// Arguments of `grounder segment`.
+#[derive(Debug, clap::Args)]
+pub struct SegmentArgs {
+    /// A scene directory in either layout of FORMATS.md §1.
+    pub scene: PathBuf,
+    /// The frame's name (its colour file's stem).
+    #[arg(long)]
+    pub frame: String,
+    /// The box in colour pixels: x0,y0,x1,y1.
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub r#box: Vec<f32>,
+    /// Segmenter spec, as the service's `segmenter` setting (`depth`, `depth:colour=off`,
+    /// `box`, `sam:...`).
+    #[arg(long, default_value = "depth")]
+    pub segmenter: String,
+    /// Where to write the frame with the mask and the box drawn on it (PNG).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Run `grounder segment`.
+pub fn run(args: SegmentArgs) -> Result<()> {
+    let Ok(b) = <[f32; 4]>::try_from(args.r#box.as_slice()) else {
+        bail!(
+            "--box takes four numbers, x0,y0,x1,y1, not {}",
+            args.r#box.len()
+        );
+    };
+    if !b.iter().all(|v| v.is_finite()) || b[2] <= b[0] || b[3] <= b[1] {
+        bail!("--box {b:?} has no area (x1 must exceed x0 and y1 y0)");
+    }
+    let root = format::find_scene_root(&args.scene).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let files = format::scan(&root).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let scene = import::import(&files, &args.scene, import::DEFAULT_MAX_IMAGE_PIXELS)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let Some(f) = scene.frames.iter().find(|f| f.name == args.frame) else {
+        bail!("the scene has no frame named {:?}", args.frame);
+    };
+    if !f.usable {
+        bail!("frame {:?} is not usable (no valid pose)", args.frame);
+    }
+    let (dw, dh) = scene.depth_size;
+    let depth = decompress_depth(&f.depth_blob, dw, dh)
+        .with_context(|| format!("frame {}: depth", f.name))?;
+    let camera = FrameCamera {
+        color: scene.color,
+        depth: scene.depth,
+        depth_size: (dw, dh),
+        pose: f.pose,
+        align: scene.axis_align.unwrap_or_else(Matrix4::identity),
+    };
+    let image = image::open(&f.color_path)
+        .with_context(|| format!("frame {}: colour", f.name))?
+        .to_rgb8();
+    let (w, h) = image.dimensions();
+    if b[0] >= w as f32 || b[1] >= h as f32 || b[2] <= 0.0 || b[3] <= 0.0 {
+        bail!("--box {b:?} lies outside the {w}x{h} image");
+    }
+    let seg = build_segmenter(&args.segmenter, &VisionConfig::default())?;
+    let input = SegmentInput {
+        color: &image,
+        depth: &depth,
+        camera: &camera,
+    };
+    let mask = seg.segment(&input, b)?;
+    let rule = PartialParams::default();
+    let partial = partial_view(&mask, &camera, &depth, &rule);
+    let sides = hidden_sides(b, &mask, &camera, &depth, &rule);
+    let mut drawn = image.clone();
+    for (x, y, p) in drawn.enumerate_pixels_mut() {
+        if mask.get(x, y) {
+            let [r, g, b] = p.0;
+            *p = Rgb([r / 2 + 127, g / 2, b / 2]);
+        }
+    }
+    let [x0, y0, x1, y1] = b.map(|v| v.round().max(0.0) as u32);
+    for x in x0..x1.min(w) {
+        for y in [y0.min(h - 1), y1.saturating_sub(1).min(h - 1)] {
+            drawn.put_pixel(x, y, Rgb([0, 255, 0]));
+        }
+    }
+    for y in y0..y1.min(h) {
+        for x in [x0.min(w - 1), x1.saturating_sub(1).min(w - 1)] {
+            drawn.put_pixel(x, y, Rgb([0, 255, 0]));
+        }
+    }
+    drawn
+        .save(&args.out)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    println!(
+        "{}",
+        serde_json::json!({"frame": f.name, "box": b, "segmenter": seg.name(),
+            "pixels": mask.count(), "mask_box": bounds(&mask, 0),
+            "partial": partial, "hidden_sides": sides})
+    );
+    Ok(())
+}
