@@ -128,9 +128,7 @@ pub struct SupportParams {
     pub planar_max_depth: f64,
     /// Share of the plane's points a 1 cm layer must hold to count as the object's front
     /// face (the layer nearest the camera wins: a window's frame before its glass); 0 takes
-    /// the median of the points, one layer. The valley the layer must stand apart by is
-    /// what tells a surface from noise; the share only keeps out a few stray points. A
-    /// close-up of a window shows little of its frame: 3 % of the points in one.
+    /// the median of the points, one layer.
     pub planar_front_share: f64,
     /// Cut the patch of a wall an object's mask leaked onto (see [`super::walls`]).
     pub wall_cut: bool,
@@ -257,7 +255,7 @@ impl Default for SupportParams {
                 .to_vec(),
             planar_iqr: 0.05,
             planar_max_depth: 0.15,
-            planar_front_share: 0.02,
+            planar_front_share: 0.15,
             wall_cut: true,
             room_wall_cut: true,
             room_wall_search: 0.12,
