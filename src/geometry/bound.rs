@@ -92,8 +92,9 @@ pub fn box_lattice(b: [f64; 4], n: usize, inner: f64) -> impl Iterator<Item = (f
 }
 
 /// `points` less those that project outside `bound`: into the image outside the box (past
-/// a side that is not open), or outside the image when the bound is not `open`. A point behind the camera is kept (the
-/// bound does not speak for it), and so is every point when the pose is unusable.
+/// a side that is not open), or outside the image when the bound is not `open`. A point
+/// behind the camera is kept (the bound does not speak for it), and so is every point when
+/// the pose is unusable.
 pub fn within_bound(points: &[Point3<f64>], bound: &ViewBound<'_>) -> Vec<Point3<f64>> {
     let Ok(to_cam) = bound.camera.out_to_cam() else {
         return points.to_vec();
