@@ -240,14 +240,20 @@ pub async fn run(
         &scene.frames[choice.frame_idx].depth,
         &cp.partial,
     );
-    // The sides of the chosen box a nearer surface crosses: the object may go on past them.
-    let anchor_sides = hidden_sides(
-        choice.bbox,
-        &anchor_mask,
-        &scene.frames[choice.frame_idx].camera,
-        &scene.frames[choice.frame_idx].depth,
-        &cp.partial,
-    );
+    // The chosen box, when drawn on the image (not a candidate's), and what it bounds.
+    let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
+    // The sides of that box a nearer surface crosses: the object may go on past them. A
+    // mark's box bounds nothing, so its sides are not read (null in the trace).
+    let anchor_hidden = anchor_box.map(|b| {
+        hidden_sides(
+            b,
+            &anchor_mask,
+            &scene.frames[choice.frame_idx].camera,
+            &scene.frames[choice.frame_idx].depth,
+            &cp.partial,
+        )
+    });
+    let anchor_sides = anchor_hidden.unwrap_or_default();
     let views_take_candidates =
         cp.enabled && cp.in_views && (!cp.in_views_partial_only || anchor_partial.partial);
     let (mut view_boxes, computed) =
@@ -270,8 +276,6 @@ pub async fn run(
         cut_walls,
         walls: walls.clone(),
     };
-    // The chosen box, when drawn on the image (not a candidate's), and what it bounds.
-    let anchor_box = (choice.source != super::proposal::BoxSource::Marks).then_some(choice.bbox);
     // A view's candidate must agree with the chosen view before it is used.
     let tc = Instant::now();
     let has_candidate = view_boxes.iter().any(|v| v.2 == BoxFrom::Candidate);
@@ -545,7 +549,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "anchor_hidden_sides": anchor_sides, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "anchor_hidden_sides": anchor_hidden, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

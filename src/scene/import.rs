@@ -10,7 +10,7 @@ use super::format::{self, Layout, SceneFiles};
 use super::model::compress_depth;
 use super::SceneError;
 use crate::geometry::camera::is_finite_matrix;
-use crate::geometry::{DepthMap, Intrinsics};
+use crate::geometry::{DepthMap, FrameCamera, Intrinsics};
 
 /// One validated frame, ready to be stored.
 #[derive(Debug)]
@@ -47,6 +47,25 @@ impl ImportedScene {
             .map(|f| f.name.clone())
             .collect()
     }
+
+    /// The camera of one of this scene's frames (identity alignment when the scene has none).
+    pub fn camera(&self, frame: &ImportedFrame) -> FrameCamera {
+        FrameCamera {
+            color: self.color,
+            depth: self.depth,
+            depth_size: self.depth_size,
+            pose: frame.pose,
+            align: self.axis_align.unwrap_or_else(Matrix4::identity),
+        }
+    }
+}
+
+/// Find, scan and import a scene directory in place (either layout of FORMATS.md §1), with
+/// the default per-image pixel limit: what the command-line tools read a scene with.
+pub fn import_dir(dir: &Path) -> Result<ImportedScene, SceneError> {
+    let root = format::find_scene_root(dir)?;
+    let files = format::scan(&root)?;
+    import(&files, dir, DEFAULT_MAX_IMAGE_PIXELS)
 }
 
 fn image_size(path: &Path, what: &str) -> Result<(u32, u32), SceneError> {

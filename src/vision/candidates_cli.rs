@@ -4,11 +4,10 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use nalgebra::Matrix4;
 
 use super::candidates::{frame_candidates, CandidateParams};
-use crate::geometry::{estimate_room, FrameCamera, LayoutParams};
-use crate::scene::{format, import, model::decompress_depth};
+use crate::geometry::{estimate_room, LayoutParams};
+use crate::scene::{import, model::decompress_depth};
 use crate::stitch::annotate::{annotate_instances, AnnotateOptions};
 
 /// Arguments of `grounder candidates`.
@@ -26,23 +25,13 @@ pub struct CandidatesArgs {
 
 /// Run `grounder candidates`.
 pub fn run(args: CandidatesArgs) -> Result<()> {
-    let root = format::find_scene_root(&args.scene).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let files = format::scan(&root).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let scene = import::import(&files, &args.scene, import::DEFAULT_MAX_IMAGE_PIXELS)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let scene = import::import_dir(&args.scene).map_err(|e| anyhow::anyhow!("{e}"))?;
     let (dw, dh) = scene.depth_size;
-    let align = scene.axis_align.unwrap_or_else(Matrix4::identity);
     let mut frames = Vec::new();
     for f in scene.frames.iter().filter(|f| f.usable) {
         let depth = decompress_depth(&f.depth_blob, dw, dh)
             .with_context(|| format!("frame {}: depth", f.name))?;
-        let cam = FrameCamera {
-            color: scene.color,
-            depth: scene.depth,
-            depth_size: (dw, dh),
-            pose: f.pose,
-            align,
-        };
+        let cam = scene.camera(f);
         frames.push((f, cam, depth));
     }
     let lp = LayoutParams::default();

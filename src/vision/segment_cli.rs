@@ -10,12 +10,11 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use image::Rgb;
-use nalgebra::Matrix4;
 
 use super::{build_segmenter, SegmentInput, VisionConfig};
 use crate::geometry::morph::bounds;
-use crate::geometry::{hidden_sides, partial_view, FrameCamera, PartialParams};
-use crate::scene::{format, import, model::decompress_depth};
+use crate::geometry::{hidden_sides, partial_view, PartialParams};
+use crate::scene::{import, model::decompress_depth};
 
 /// Arguments of `grounder segment`.
 #[derive(Debug, clap::Args)]
@@ -48,10 +47,7 @@ pub fn run(args: SegmentArgs) -> Result<()> {
     if !b.iter().all(|v| v.is_finite()) || b[2] <= b[0] || b[3] <= b[1] {
         bail!("--box {b:?} has no area (x1 must exceed x0 and y1 y0)");
     }
-    let root = format::find_scene_root(&args.scene).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let files = format::scan(&root).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let scene = import::import(&files, &args.scene, import::DEFAULT_MAX_IMAGE_PIXELS)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let scene = import::import_dir(&args.scene).map_err(|e| anyhow::anyhow!("{e}"))?;
     let Some(f) = scene.frames.iter().find(|f| f.name == args.frame) else {
         bail!("the scene has no frame named {:?}", args.frame);
     };
@@ -61,13 +57,7 @@ pub fn run(args: SegmentArgs) -> Result<()> {
     let (dw, dh) = scene.depth_size;
     let depth = decompress_depth(&f.depth_blob, dw, dh)
         .with_context(|| format!("frame {}: depth", f.name))?;
-    let camera = FrameCamera {
-        color: scene.color,
-        depth: scene.depth,
-        depth_size: (dw, dh),
-        pose: f.pose,
-        align: scene.axis_align.unwrap_or_else(Matrix4::identity),
-    };
+    let camera = scene.camera(f);
     let image = image::open(&f.color_path)
         .with_context(|| format!("frame {}: colour", f.name))?
         .to_rgb8();
