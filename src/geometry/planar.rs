@@ -52,13 +52,21 @@ impl PlanarSnap {
     }
 }
 
+/// How many standard deviations of a Poisson count a front layer must stand above the
+/// valley before it (see [`front_layer`]): the usual three.
+const LAYER_SIGNIFICANCE: f64 = 3.0;
+
 /// The object's front face on `axis`: the `median` of its points, unless a separate layer
 /// lies before it (on the camera's side `toward`, +1 or -1): a local maximum of the
 /// points' 1 cm histogram (smoothed 1-2-1, within `reach` of the median) whose three bins
-/// hold at least `share` of the points, with a valley between it and the main layer. The nearest such
-/// layer wins. A picture or a door is one layer, and its front is its median; a window's
-/// frame stands a few centimetres before its glass, and the glass, the larger part, would
-/// put the front behind the frame. `share` 0 gives the median.
+/// hold at least `share` of the points, with a valley between it and the main layer, and
+/// that stands out of that valley by more than counting noise: its three bins exceed the
+/// emptiest three between the two by [`LAYER_SIGNIFICANCE`] times the square root of the
+/// latter (a surface, not the tail of noisy readings: a far picture's few measured points
+/// scatter over the centimetres before it, and any bump of them would pass the share). The
+/// nearest such layer wins. A picture or a door is one layer, and its front is its median;
+/// a window's frame stands a few centimetres before its glass, and the glass, the larger
+/// part, would put the front behind the frame. `share` 0 gives the median.
 fn front_layer(
     points: &[Point3<f64>],
     axis: usize,
@@ -98,15 +106,22 @@ fn front_layer(
     // valley between the two below half its height (noise spreads one surface over
     // several bins, with no valley).
     let pos = |k: usize| lo + k as f64 * BIN;
+    let three = |k: usize| (at(k as isize - 1) + at(k as isize) + at(k as isize + 1)) as f64;
     (0..n)
         .filter(|&k| {
             let s = smooth[k];
             let (a, b) = (k.min(main), k.max(main));
+            // The emptiest three bins strictly between the layer and the main one.
+            let floor = (a + 1..b)
+                .map(three)
+                .fold(f64::INFINITY, f64::min)
+                .min(three(k));
             toward * (pos(k) - pos(main)) > 0.0
-                && ((at(k as isize - 1) + at(k as isize) + at(k as isize + 1)) as f64) >= need
+                && three(k) >= need
                 && (k == 0 || smooth[k - 1] < s)
                 && (k + 1 == n || smooth[k + 1] <= s)
                 && smooth[a..=b].iter().any(|&v| 2 * v < s)
+                && three(k) - floor > LAYER_SIGNIFICANCE * floor.sqrt()
         })
         .map(pos)
         .max_by(|x, y| (toward * x).total_cmp(&(toward * y)))

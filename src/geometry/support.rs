@@ -255,7 +255,7 @@ impl Default for SupportParams {
                 .to_vec(),
             planar_iqr: 0.05,
             planar_max_depth: 0.15,
-            planar_front_share: 0.15,
+            planar_front_share: 0.02,
             wall_cut: true,
             room_wall_cut: true,
             room_wall_search: 0.12,
