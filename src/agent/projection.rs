@@ -30,8 +30,8 @@ use crate::geometry::fusion::{fuse_segmented, SegmentedView, VotedFusion};
 use crate::geometry::round_back::round_back;
 use crate::geometry::support::{extend_to_support, median_point};
 use crate::geometry::{
-    hidden_sides, partial_view, snap_planar_to_wall, view_bound, Aabb, LayoutParams, Mask,
-    RoomLayout,
+    face_depth_ratio, hidden_sides, partial_view, snap_planar_to_wall, view_bound, Aabb,
+    LayoutParams, Mask, RoomLayout,
 };
 use crate::jobs::{JobContext, JobFailure};
 use crate::vlm::CallBudget;
@@ -254,8 +254,14 @@ pub async fn run(
         )
     });
     let anchor_sides = anchor_hidden.unwrap_or_default();
-    let views_take_candidates =
-        cp.enabled && cp.in_views && (!cp.in_views_partial_only || anchor_partial.partial);
+    // A solid object (a chair, not a picture) measured as a thin slab: the view saw one
+    // face of it, and the rest is behind that face.
+    let anchor_depth_ratio = face_depth_ratio(&anchor_pts);
+    let face_only =
+        cut_walls && anchor_depth_ratio.is_some_and(|r| r < cp.partial.face_depth_ratio);
+    let views_take_candidates = cp.enabled
+        && cp.in_views
+        && (!cp.in_views_partial_only || anchor_partial.partial || face_only);
     let (mut view_boxes, computed) =
         super::ensemble_boxes::boxes(g, ctx, pre, &views, views_take_candidates).await?;
     let candidates_computed: Vec<String> = computed.iter().map(|i| format!("{i:05}")).collect();
@@ -549,7 +555,7 @@ pub async fn run(
         ctx,
         "projection",
         json!({"anchor_points": fusion.anchor_points, "candidate_views": views.len()}),
-        json!({"box": bbox, "anchor_partial": anchor_partial, "anchor_hidden_sides": anchor_hidden, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
+        json!({"box": bbox, "anchor_partial": anchor_partial, "anchor_hidden_sides": anchor_hidden, "anchor_depth_ratio": anchor_depth_ratio, "anchor_face_only": face_only, "views_take_candidates": views_take_candidates, "view_candidates_computed": candidates_computed, "candidate_check": candidate_check, "view_box": view_box, "fused_box": fusion.aabb, "flattened": fusion.flattened, "support": moved, "hidden_base": bottom.hidden, "floor_standing": floor_standing, "floor_reach": bottom.reach, "box_edge": bottom.edge, "planar": planar, "round_back": round_back, "mask_votes": votes, "carved_points": fusion.carved_points, "single_view_box": single, "views": view_json, "views_used": views_used, "fused_points": fusion.fused_points, "kept_points": fusion.kept_points, "views_decoded": views_decoded, "exports": exported,
                "timings_ms": {"find_views": find_ms, "decode": decode_ms, "candidate_check": check_ms, "segment": segment_ms, "fuse": fuse_ms, "support": support_ms}}),
         tp,
     )

@@ -63,7 +63,7 @@ pub use layout::{estimate_room, LayoutParams, RoomLayout};
 pub use mask::Mask;
 pub use morph::{dilate_square, erode_square, keep_largest_components, postprocess_mask};
 pub use params::GeometryParams;
-pub use partial::{hidden_sides, partial_view, PartialParams, PartialView};
+pub use partial::{face_depth_ratio, hidden_sides, partial_view, PartialParams, PartialView};
 pub use planar::{snap_planar_to_wall, PlanarSnap};
 pub use projection::{
     backproject_mask, project_points, BackprojectOptions, Projected, ProjectionError,

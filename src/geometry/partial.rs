@@ -6,11 +6,14 @@
 //!   nearer the camera than the mask's own edge (a table's edge in front of a chair's
 //!   seat): the object may go on behind that surface;
 //! - **no depth**: many of the mask's pixels have no depth reading (a black or glossy
-//!   object), so its points cover only part of it.
+//!   object), so its points cover only part of it;
+//! - **one face** ([`face_depth_ratio`]): the points of a solid object make a slab a few
+//!   centimetres thin however wide and tall it is (that face hides the rest).
 //!
 //! The agent uses it to decide whether the other views may widen the object beyond what
 //! the chosen view segmented (see `agent::projection`).
 
+use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use super::morph::bounds;
@@ -37,6 +40,10 @@ pub struct PartialParams {
     /// cover for the object to go on past that side (see [`hidden_sides`]); above 1 no
     /// side is ever open.
     pub min_side_occluded: f64,
+    /// A view whose points of a solid object (not hanging, not flat) are thinner than this
+    /// share of their narrower other extent saw one face of it (see [`face_depth_ratio`]);
+    /// 0 turns it off.
+    pub face_depth_ratio: f64,
 }
 
 impl Default for PartialParams {
@@ -49,6 +56,7 @@ impl Default for PartialParams {
             min_occluded: 0.1,
             min_missing: 0.25,
             min_side_occluded: 0.3,
+            face_depth_ratio: 0.25,
         }
     }
 }
@@ -234,6 +242,43 @@ pub fn hidden_sides(
     ]
 }
 
+/// How thin `points` (output frame, +z up) are across their narrowest level direction, as
+/// a share of the narrower of their other two extents: level and square to it, and
+/// vertical (each the spread between the 5th and the 95th percentile; the directions are
+/// the principal axes of the points' level spread). A solid object is about as deep as it
+/// is wide, while a view of one face of it measures a slab of a few centimetres however
+/// wide and tall the face is, from whatever side it looks: a chair seen from behind, its
+/// back hiding the seat. Such a view saw part of the object even when nothing else hides
+/// it. None with fewer than 20 points.
+pub fn face_depth_ratio(points: &[Point3<f64>]) -> Option<f64> {
+    if points.len() < 20 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.x / n, b + p.y / n));
+    let (mut cxx, mut cyy, mut cxy) = (0.0, 0.0, 0.0);
+    for p in points {
+        let (dx, dy) = (p.x - mx, p.y - my);
+        cxx += dx * dx;
+        cyy += dy * dy;
+        cxy += dx * dy;
+    }
+    // The level direction of the largest spread; the thin one is square to it.
+    let t = 0.5 * (2.0 * cxy).atan2(cxx - cyy);
+    let (ax, ay) = (t.cos(), t.sin());
+    let spread = |f: &dyn Fn(&Point3<f64>) -> f64| {
+        let mut v: Vec<f64> = points.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        at(0.95) - at(0.05)
+    };
+    let thin = spread(&|p| p.y * ax - p.x * ay);
+    let across = spread(&|p| p.x * ax + p.y * ay).min(spread(&|p| p.z));
+    (across.is_finite() && across > 0.0).then(|| thin / across)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -370,5 +415,38 @@ mod tests {
         assert_eq!(hidden_sides(bx, &whole, &cam, &depth, &rule), [0.0; 4]);
         let empty = Mask::new(100, 80);
         assert_eq!(hidden_sides(bx, &empty, &cam, &table, &rule), [0.0; 4]);
+    }
+
+    #[test]
+    fn one_face_of_a_solid_object_is_a_thin_slab() {
+        // A chair's back, 44 cm wide and 90 cm tall, measured with a centimetre of noise
+        // (what a view from behind sees), and the whole chair, 45 cm deep; both turned
+        // about the vertical by several angles.
+        let mut back = Vec::new();
+        let mut chair = Vec::new();
+        for i in 0..45 {
+            for j in 0..31 {
+                let (x, z) = (-0.22 + 0.01 * f64::from(i), 0.03 * f64::from(j));
+                let noise = 0.01 * f64::from((i * 7 + j * 13) % 5) / 4.0 - 0.005;
+                back.push(Point3::new(x, 3.0 + noise, z));
+                for k in 0..10 {
+                    chair.push(Point3::new(x, 3.0 + 0.05 * f64::from(k), z));
+                }
+            }
+        }
+        let turn = |pts: &[Point3<f64>], deg: f64| -> Vec<Point3<f64>> {
+            let (c, s) = (deg.to_radians().cos(), deg.to_radians().sin());
+            pts.iter()
+                .map(|p| Point3::new(c * p.x - s * p.y, s * p.x + c * p.y, p.z))
+                .collect()
+        };
+        for deg in [0.0, 30.0, 45.0, 90.0, 160.0] {
+            let face = face_depth_ratio(&turn(&back, deg)).unwrap_or(1.0);
+            assert!(face < 0.1, "{deg}: {face}");
+            let whole = face_depth_ratio(&turn(&chair, deg)).unwrap_or(0.0);
+            assert!(whole > 0.8, "{deg}: {whole}");
+        }
+        // Too few points: nothing is said.
+        assert_eq!(face_depth_ratio(&back[..10]), None);
     }
 }

@@ -47,7 +47,8 @@ async fn a_class_no_detector_knows_is_grounded_through_set_of_marks() {
 /// The ensemble views of a marks job take their boxes from their own cached candidates (the
 /// region holding the reprojected object), not only from the reprojected points; with
 /// `in_views` off they do not, and with `in_views_partial_only` (the default) only when
-/// the chosen view's mask shows a part of the object (the trace's `anchor_partial`).
+/// the chosen view's mask shows a part of the object (the trace's `anchor_partial`, or
+/// `anchor_face_only` for a solid object).
 #[tokio::test]
 async fn ensemble_views_take_the_candidate_that_holds_the_object() {
     for (in_views, partial_only) in [(true, false), (false, false), (true, true)] {
@@ -98,7 +99,10 @@ async fn ensemble_views_take_the_candidate_that_holds_the_object() {
         let out = &proj[0]["outputs"];
         let partial = out["anchor_partial"]["partial"].as_bool();
         assert!(partial.is_some(), "{out:#}");
-        let take = in_views && (!partial_only || partial == Some(true));
+        // A solid object seen by one face counts as a part too (a whiteboard hangs: never).
+        let face = out["anchor_face_only"].as_bool();
+        assert_eq!(face, Some(false), "{out:#}");
+        let take = in_views && (!partial_only || partial == Some(true) || face == Some(true));
         assert_eq!(out["views_take_candidates"], take, "{out:#}");
         if take {
             assert!(from_candidates > 0, "no view used a candidate: {views:#?}");
