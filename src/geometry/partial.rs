@@ -17,6 +17,7 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use super::morph::bounds;
+use super::support_layer::percentile;
 use super::{DepthMap, FrameCamera, Mask};
 
 /// Thresholds of [`partial_view`] (file section `[agent.candidates.partial]`).
@@ -271,8 +272,7 @@ pub fn face_depth_ratio(points: &[Point3<f64>]) -> Option<f64> {
     let spread = |f: &dyn Fn(&Point3<f64>) -> f64| {
         let mut v: Vec<f64> = points.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
-        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-        at(0.95) - at(0.05)
+        percentile(&v, 0.95) - percentile(&v, 0.05)
     };
     let thin = spread(&|p| p.y * ax - p.x * ay);
     let across = spread(&|p| p.x * ax + p.y * ay).min(spread(&|p| p.z));

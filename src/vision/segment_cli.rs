@@ -10,6 +10,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use image::Rgb;
+use imageproc::drawing::draw_hollow_rect_mut;
+use imageproc::rect::Rect;
 
 use super::{build_segmenter, SegmentInput, VisionConfig};
 use crate::geometry::morph::bounds;
@@ -82,17 +84,12 @@ pub fn run(args: SegmentArgs) -> Result<()> {
             *p = Rgb([r / 2 + 127, g / 2, b / 2]);
         }
     }
+    // The outline kept inside the image, so a box past its edge is drawn along it.
     let [x0, y0, x1, y1] = b.map(|v| v.round().max(0.0) as u32);
-    for x in x0..x1.min(w) {
-        for y in [y0.min(h - 1), y1.saturating_sub(1).min(h - 1)] {
-            drawn.put_pixel(x, y, Rgb([0, 255, 0]));
-        }
-    }
-    for y in y0..y1.min(h) {
-        for x in [x0.min(w - 1), x1.saturating_sub(1).min(w - 1)] {
-            drawn.put_pixel(x, y, Rgb([0, 255, 0]));
-        }
-    }
+    let (x0, y0, x1, y1) = (x0.min(w - 1), y0.min(h - 1), x1.min(w), y1.min(h));
+    let outline = Rect::at(x0 as i32, y0 as i32)
+        .of_size(x1.saturating_sub(x0).max(1), y1.saturating_sub(y0).max(1));
+    draw_hollow_rect_mut(&mut drawn, outline, Rgb([0, 255, 0]));
     drawn
         .save(&args.out)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
