@@ -129,6 +129,40 @@ fn a_window_frame_before_its_glass_is_the_front() {
 }
 
 #[test]
+fn a_close_up_showing_little_of_the_frame_still_finds_it_before_the_glass() {
+    // A close-up of the glass at y = 6.10 (the wall at 6.11): of the frame, only the
+    // mullion shows, 6 cm before the glass, about 4 % of the points (the outlier removal
+    // leaves 2.5 %).
+    let hole = Some([1.24, 1.34, 0.9, 2.2]);
+    let mut window = plane_y(6.10, (0.1, 2.5), (1.0, 2.1), 0.005, hole);
+    window.extend(plane_y(6.04, (1.25, 1.33), (1.0, 2.1), 0.005, None));
+    let mullion = window.iter().filter(|p| p.y < 6.07).count() as f64;
+    assert!((0.03..0.05).contains(&(mullion / window.len() as f64)));
+    let wall = plane_y(
+        6.11,
+        (-0.2, 2.8),
+        (0.7, 2.4),
+        0.005,
+        Some([0.1, 2.5, 1.0, 2.1]),
+    );
+    let fused = Aabb::new([0.08, 5.95, 0.98], [2.52, 6.15, 2.12]);
+    let gp = GeometryParams::default();
+    let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp);
+    assert!((snaps[0].front - 6.04).abs() < 0.01, "{snaps:?}");
+    assert!(
+        (b.min[1] - 6.04).abs() < 0.01 && (b.max[1] - 6.11).abs() < 0.01,
+        "{b:?}"
+    );
+    // Asked for a third of the points (a far view's share of a frame), the front is the
+    // glass, and the box only the class's depth.
+    let mut third = gp.clone();
+    third.support.planar_front_share = 0.3;
+    let (_, snaps) =
+        snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &third);
+    assert!((snaps[0].front - 6.10).abs() < 0.01, "{snaps:?}");
+}
+
+#[test]
 fn a_window_no_frame_measured_gets_its_depth_in_front_of_the_rooms_wall() {
     use crate::geometry::RoomLayout;
     // The window's points were ended on the room's wall y = 6.11 (no reading anywhere);

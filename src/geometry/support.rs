@@ -128,7 +128,9 @@ pub struct SupportParams {
     pub planar_max_depth: f64,
     /// Share of the plane's points a 1 cm layer must hold to count as the object's front
     /// face (the layer nearest the camera wins: a window's frame before its glass); 0 takes
-    /// the median of the points, one layer.
+    /// the median of the points, one layer. The layer must also stand out of the readings
+    /// between it and the main layer (see `planar::front_layer`): a close-up of a window
+    /// shows little of its frame, 3 % of the points in one.
     pub planar_front_share: f64,
     /// Cut the patch of a wall an object's mask leaked onto (see [`super::walls`]).
     pub wall_cut: bool,
