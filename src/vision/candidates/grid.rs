@@ -375,3 +375,53 @@ pub(super) fn to_candidate(
         max: hi,
     }
 }
+
+/// Where the object of `cells` meets the floor, in the image: for a region standing on the
+/// floor at height `floor` (its lowest cell within twice the structure margin of it, at
+/// that cell's depth: what lies below was cut as the floor's band, a lamp's flat foot or a
+/// chair's feet), the box of its cells' points dropped straight onto the floor and
+/// projected with `cam`, clamped to the image `dims`, each side at the 2nd or 98th
+/// percentile of the dropped points (a few noisy readings before a face would otherwise
+/// set them; the caller joins it to the region's own box). `None` for a region above that (on a top,
+/// hung, or with its lower part hidden), or when no dropped point is in front of the
+/// camera.
+pub(super) fn floor_reach(
+    g: &Grid,
+    cells: &[usize],
+    cam: &FrameCamera,
+    floor: f64,
+    p: &CandidateParams,
+    dims: (u32, u32),
+) -> Option<[f32; 4]> {
+    let lowest = cells
+        .iter()
+        .copied()
+        .min_by(|&a, &b| g.pts[a].z.total_cmp(&g.pts[b].z))?;
+    let margin = p.structure_margin + p.structure_per_m * g.z[lowest];
+    if g.pts[lowest].z - floor > 2.0 * margin {
+        return None;
+    }
+    let to_cam = cam.cam_to_out().try_inverse()?;
+    let (mut us, mut vs): (Vec<f64>, Vec<f64>) = cells
+        .iter()
+        .filter_map(|&i| {
+            let dropped = Point3::new(g.pts[i].x, g.pts[i].y, floor);
+            cam.color
+                .project(&transform_point(&to_cam, &dropped))
+                .map(|(u, v, _)| (u, v))
+        })
+        .unzip();
+    if us.is_empty() {
+        return None;
+    }
+    us.sort_by(f64::total_cmp);
+    vs.sort_by(f64::total_cmp);
+    let at = |v: &[f64], q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    let (w, h) = (f64::from(dims.0), f64::from(dims.1));
+    Some([
+        at(&us, 0.02).clamp(0.0, w) as f32,
+        at(&vs, 0.02).clamp(0.0, h) as f32,
+        at(&us, 0.98).clamp(0.0, w) as f32,
+        at(&vs, 0.98).clamp(0.0, h) as f32,
+    ])
+}

@@ -9,7 +9,10 @@
 //! 2. with the room's layout (`geometry::layout`), a cell within `structure_margin` (+
 //!    `structure_per_m` per metre of depth) of the floor, the ceiling or a wall is room
 //!    structure, not an object. A cell without depth whose ray leaves the room beyond the
-//!    sensor's range is put on that wall;
+//!    sensor's range is put on that wall. What an object has within the floor's band (a
+//!    lamp's flat foot, a chair's feet) is cut with it, so the box of an object, group or
+//!    part whose lowest cell lies within twice the margin of the floor is extended to its
+//!    cells dropped onto the floor (`grid::floor_reach`): where it stands;
 //! 3. **objects**: the remaining cells joined to their 4-neighbours across depth steps
 //!    smaller than `step_fixed + step_per_m * z + step_footprints * footprint` (a cell's
 //!    footprint at depth z is `cell_px * z / fx`, so a slanted face stays whole);
@@ -47,8 +50,8 @@ use serde::{Deserialize, Serialize};
 use super::depth_seg::same_hue;
 use crate::geometry::{DepthMap, FrameCamera, LayoutParams, PartialParams, RoomLayout};
 use grid::{
-    build_grid, colour_split, dominant_colour, opened_components, pairs, regions, to_candidate,
-    Cell, Sets,
+    build_grid, colour_split, dominant_colour, floor_reach, opened_components, pairs, regions,
+    to_candidate, Cell, Sets,
 };
 
 /// Settings of [`frame_candidates`] (file section `[agent.candidates]`).
@@ -208,7 +211,7 @@ impl Default for CandidateParams {
 /// Version of what [`frame_candidates`] computes from the same frame and settings. Raise it
 /// with every change to its output: cached candidates of another version are not read
 /// (they are computed again where a job needs them, and replaced at the next indexing).
-pub const ALGORITHM_VERSION: u32 = 5;
+pub const ALGORITHM_VERSION: u32 = 6;
 
 /// Settings of [`CandidateParams`] that decide how the candidates are used, not which are
 /// found: changing them keeps the cache.
@@ -361,11 +364,27 @@ pub fn frame_candidates(
     let fits = |c: &Candidate| {
         c.cells >= p.min_cells && (0..3).all(|k| c.max[k] - c.min[k] <= p.max_extent)
     };
+    // A region standing on the floor reaches down to it, past the floor's band.
+    let floor = layout.and_then(|l| l.floor);
+    let standing = |r: &[usize], kind: CandidateKind| {
+        let mut c = to_candidate(&g, r, kind, dims);
+        // (Too small to be offered: not worth the projections.)
+        let reach = floor.filter(|_| r.len() >= p.min_cells);
+        if let Some(b) = reach.and_then(|f| floor_reach(&g, r, cam, f, p, dims)) {
+            c.bbox = [
+                c.bbox[0].min(b[0]),
+                c.bbox[1].min(b[1]),
+                c.bbox[2].max(b[2]),
+                c.bbox[3].max(b[3]),
+            ];
+        }
+        c
+    };
     let mut out: Vec<Candidate> = Vec::new();
     let free = |i: usize| g.kind[i] == Cell::Free;
     let object_regions = regions(&mut objects, free, n);
     for r in &object_regions {
-        let c = to_candidate(&g, r, CandidateKind::Object, dims);
+        let c = standing(r, CandidateKind::Object);
         if fits(&c) {
             out.push(c);
         }
@@ -392,7 +411,7 @@ pub fn frame_candidates(
         for r in colour_split(&g, whole, p.colour_tol, least, 2) {
             if r.len() < whole.len() * 9 / 10 {
                 for r in with_side_by_side(r) {
-                    let c = to_candidate(&g, &r, CandidateKind::Part, dims);
+                    let c = standing(&r, CandidateKind::Part);
                     if fits(&c) {
                         out.push(c);
                     }
@@ -439,7 +458,7 @@ pub fn frame_candidates(
         members.sort_unstable();
         members.dedup();
         if members.len() > 1 {
-            let c = to_candidate(&g, &r, CandidateKind::Group, dims);
+            let c = standing(&r, CandidateKind::Group);
             if fits(&c) {
                 out.push(c);
             }
@@ -450,7 +469,7 @@ pub fn frame_candidates(
             }) {
                 if big(ka) && big(kb) {
                     let both = [&object_regions[ka][..], &object_regions[kb][..]].concat();
-                    let c = to_candidate(&g, &both, CandidateKind::Group, dims);
+                    let c = standing(&both, CandidateKind::Group);
                     if fits(&c) {
                         out.push(c);
                     }

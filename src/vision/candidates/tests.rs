@@ -169,6 +169,32 @@ fn a_lamp_before_a_wall_is_a_candidate_and_the_wall_is_not() {
 }
 
 #[test]
+fn a_lamp_with_its_flat_foot_in_the_floors_band_reaches_down_to_the_floor() {
+    // A floor lamp seen from above and in front: its 3 cm foot, 36 cm wide, lies within the
+    // floor's structure band, so its cells are cut with the floor; the pole and the shade
+    // reach down to the band.
+    let mut parts = room();
+    let (dark, light) = ([60, 60, 60], [200, 200, 200]);
+    parts.push(part([1.82, 2.32, 0.0], [2.18, 2.68, 0.03], light, 7));
+    parts.push(part([1.98, 2.48, 0.03], [2.02, 2.52, 1.2], dark, 7));
+    parts.push(part([1.78, 2.28, 1.2], [2.22, 2.72, 1.45], light, 7));
+    let cam = camera([2.0, 0.6, 2.2], [2.0, 2.5, 0.7]);
+    let (cands, ids) = run(&cam, &parts);
+    let truth = truth_box(&ids, 320, 7);
+    let c = best(&cands, &truth).expect("a candidate");
+    // The lamp's box ends where its foot meets the floor, not where the band begins, and
+    // no lower than the shade dropped onto the floor would reach (the shade is 4 cm wider
+    // than the foot each way).
+    assert!(
+        c.bbox[3] >= truth[3] - 1.0 && c.bbox[3] <= truth[3] + 12.0,
+        "the candidate {c:?} ends at {} and the lamp at {}",
+        c.bbox[3],
+        truth[3]
+    );
+    assert!(box_iou(&c.bbox, &truth) > 0.8, "{c:?} for {truth:?}");
+}
+
+#[test]
 fn two_touching_objects_of_different_colours_are_separate_candidates() {
     let mut parts = room();
     // A bed with two pillows touching each other, blue and yellow.
