@@ -38,6 +38,7 @@ pub mod round_back;
 pub mod sightline;
 pub mod support;
 mod support_layer;
+pub(crate) use support_layer::percentile;
 #[cfg(test)]
 pub(crate) mod test_grid;
 #[cfg(test)]

@@ -7,6 +7,7 @@ use nalgebra::Point3;
 
 use super::{Candidate, CandidateKind, CandidateParams};
 use crate::geometry::camera::transform_point;
+use crate::geometry::percentile;
 use crate::geometry::{DepthMap, FrameCamera, LayoutParams, RoomLayout};
 use crate::vision::depth_seg::same_hue;
 
@@ -416,12 +417,11 @@ pub(super) fn floor_reach(
     }
     us.sort_by(f64::total_cmp);
     vs.sort_by(f64::total_cmp);
-    let at = |v: &[f64], q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
     let (w, h) = (f64::from(dims.0), f64::from(dims.1));
     Some([
-        at(&us, 0.02).clamp(0.0, w) as f32,
-        at(&vs, 0.02).clamp(0.0, h) as f32,
-        at(&us, 0.98).clamp(0.0, w) as f32,
-        at(&vs, 0.98).clamp(0.0, h) as f32,
+        percentile(&us, 0.02).clamp(0.0, w) as f32,
+        percentile(&vs, 0.02).clamp(0.0, h) as f32,
+        percentile(&us, 0.98).clamp(0.0, w) as f32,
+        percentile(&vs, 0.98).clamp(0.0, h) as f32,
     ])
 }
