@@ -13,17 +13,39 @@ use grounder::storage::Storage;
 
 use crate::helpers::{client, tar_of, test_config, tiny_scene_files, TestApp};
 
-/// A moto server on a free port, killed when dropped.
+/// A moto server on a free port, killed when dropped, or by its watchdog within a second
+/// of this test process ending without dropping it (killed, or aborted by a panic).
 pub(crate) struct Moto {
     child: Child,
+    watchdog: Option<Child>,
     port: u16,
 }
 
 impl Drop for Moto {
     fn drop(&mut self) {
+        // The watchdog first: once the server is reaped its pid may be another process's.
+        if let Some(w) = self.watchdog.as_mut() {
+            let _ = w.kill();
+            let _ = w.wait();
+        }
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// A shell that waits for this test process to end, then kills process `pid`.
+fn watchdog(pid: u32) -> Option<Child> {
+    let script = format!(
+        "while [ -d /proc/{me} ]; do sleep 1; done; kill {pid} 2>/dev/null",
+        me = std::process::id()
+    );
+    Command::new("sh")
+        .args(["-c", &script])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .ok()
 }
 
 impl Moto {
@@ -38,7 +60,12 @@ impl Moto {
             .stderr(Stdio::null())
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start python3 -m moto.server ({e}); run .ci/run, which installs moto[server]"));
-        let mut moto = Moto { child, port };
+        let watchdog = watchdog(child.id());
+        let mut moto = Moto {
+            child,
+            watchdog,
+            port,
+        };
         let client = client();
         for _ in 0..200 {
             if let Ok(Some(status)) = moto.child.try_wait() {
