@@ -15,11 +15,12 @@
 //! 3. walls: along each turned axis, from each end inwards, the first layer holding
 //!    `min_points` that spreads over `min_spread` along the wall; it must lie beyond every
 //!    camera (the cameras are inside the room). Nothing is measured behind a wall, so the
-//!    outermost such layer is the wall, however little of it was measured. A wall that no
-//!    frame faced (a scan circling the room and looking across it sees the walls along its
-//!    long side only beyond range) is placed where the measured points end along that axis:
-//!    the walls running up to it, and the floor, end there in `end_frames` frames or more
-//!    (the range ends each frame's points at a different place).
+//!    outermost such layer is the wall, however little of it was measured (centred where
+//!    its readings are densest: see [`outer_layer`]). A wall that no frame faced (a scan
+//!    circling the room and looking across it sees the walls along its long side only
+//!    beyond range) is placed where the measured points end along that axis: the walls
+//!    running up to it, and the floor, end there in `end_frames` frames or more (the range
+//!    ends each frame's points at a different place).
 //!
 //! A side that was not found stays open: a ray leaving through it has no end.
 
@@ -236,7 +237,8 @@ fn spread(mut v: Vec<f64>) -> f64 {
 
 /// The outermost layer of `coord` seen from the low end (`from_low`) or the high end:
 /// three bins holding `min_points` whose points spread over `min_spread` along each of the
-/// `lateral` coordinates, lying beyond `limit` (outside the cameras). Its median coordinate.
+/// `lateral` coordinates, lying beyond `limit` (outside the cameras). Where the points
+/// within the layer's thickness of its median are densest (in [`centre::MODE_WIDTH`]).
 fn outer_layer(
     coord: &[f64],
     lateral: &[&[f64]],
@@ -281,7 +283,10 @@ fn outer_layer(
             .all(|l| spread(members.iter().map(|&k| l[k]).collect()) >= p.min_spread)
         {
             let mut c: Vec<f64> = members.iter().map(|&k| coord[k]).collect();
-            return quantile(&mut c, 0.5);
+            // Found from outside, in the tail of its noise on that side, and holding what
+            // hangs on the wall as well: centred on its densest part.
+            let start = quantile(&mut c, 0.5)?;
+            return Some(centre::wall_centre(coord, lateral, start, p));
         }
     }
     None
@@ -584,5 +589,6 @@ impl RoomLayout {
     }
 }
 
+mod centre;
 #[cfg(test)]
 mod tests;

@@ -180,3 +180,44 @@ fn a_frame_posed_far_away_does_not_blow_up_the_histograms() {
         "{l:?}"
     );
 }
+
+#[test]
+fn noisy_walls_are_placed_where_they_stand_not_in_their_noise_s_outer_tail() {
+    // The room of the first test, its depth read with 3 cm of noise (a sum of four
+    // uniforms, as wide as a consumer sensor's at 4 m). Seen from outside, the first layer
+    // dense enough lies in the wall's outer tail.
+    let cams = ring(3.0, 2.5, 0.8);
+    let scene = room(6.0, 5.0, 2.7);
+    let maps: Vec<DepthMap> = cams
+        .iter()
+        .enumerate()
+        .map(|(f, c)| {
+            let clean = render(c, &scene, 5.0);
+            let (w, h) = (clean.width, clean.height);
+            let mut i = 0u64;
+            let mut noisy = Vec::with_capacity((w * h) as usize);
+            for y in 0..h {
+                for x in 0..w {
+                    let d = clean.get(x, y);
+                    let n: f64 = (0..4u64)
+                        .map(|k| {
+                            let v = (i * 4 + k + 1)
+                                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                                .wrapping_add((f as u64 + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9));
+                            ((v >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+                        })
+                        .sum();
+                    i += 1;
+                    let z = f64::from(d) + 0.03 * 1000.0 * n * 3f64.sqrt();
+                    noisy.push(if d == 0 { 0 } else { z.round().max(1.0) as u16 });
+                }
+            }
+            DepthMap::new(w, h, noisy)
+        })
+        .collect();
+    let frames: Vec<(&FrameCamera, &DepthMap)> = cams.iter().zip(&maps).collect();
+    let l = estimate_room(&frames, &params()).expect("a layout");
+    for (got, want) in [(l.u[0], 0.0), (l.u[1], 6.0), (l.v[0], 0.0), (l.v[1], 5.0)] {
+        assert!(near(got, want, 0.008), "{got:?} against {want}: {l:?}");
+    }
+}

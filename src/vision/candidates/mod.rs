@@ -209,9 +209,11 @@ impl Default for CandidateParams {
 }
 
 /// Version of what [`frame_candidates`] computes from the same frame and settings. Raise it
-/// with every change to its output: cached candidates of another version are not read
-/// (they are computed again where a job needs them, and replaced at the next indexing).
-pub const ALGORITHM_VERSION: u32 = 6;
+/// with every change to its output, a change to the room's box they are cut against
+/// ([`crate::geometry::estimate_room`]) included: cached candidates of another version are
+/// not read (they are computed again where a job needs them, and replaced at the next
+/// indexing).
+pub const ALGORITHM_VERSION: u32 = 7;
 
 /// Settings of [`CandidateParams`] that decide how the candidates are used, not which are
 /// found: changing them keeps the cache.
