@@ -3,8 +3,10 @@
 //! (the mask's size and box, and the evidence that the view saw a part: see
 //! `geometry::partial`). For finding out why a view's mask is what it is without a job.
 //!
-//! The frame's own depth is used: the service first completes the chosen view's missing
-//! readings from the other frames (`agent.geometry.depth_fill`), which this does not.
+//! As the service does for the chosen view, the frame's missing depth readings inside the
+//! box are first completed from the other frames and the room's box
+//! (`agent.geometry.depth_fill`, default settings); `--depth-fill off` segments the frame's
+//! own depth.
 
 use std::path::PathBuf;
 
@@ -15,7 +17,9 @@ use imageproc::rect::Rect;
 
 use super::{build_segmenter, SegmentInput, VisionConfig};
 use crate::geometry::morph::bounds;
-use crate::geometry::{hidden_sides, partial_view, PartialParams};
+use crate::geometry::{
+    estimate_room, fill_depth, hidden_sides, partial_view, GeometryParams, PartialParams,
+};
 use crate::scene::{import, model::decompress_depth};
 
 /// Arguments of `grounder segment`.
@@ -36,6 +40,10 @@ pub struct SegmentArgs {
     /// Where to write the frame with the mask and the box drawn on it (PNG).
     #[arg(long)]
     pub out: PathBuf,
+    /// Complete the frame's missing depth inside the box from the other frames and the
+    /// room's box first, as the service does for the chosen view (`on`), or not (`off`).
+    #[arg(long, default_value = "on", value_parser = ["on", "off"])]
+    pub depth_fill: String,
 }
 
 /// Run `grounder segment`.
@@ -67,6 +75,12 @@ pub fn run(args: SegmentArgs) -> Result<()> {
     if b[0] >= w as f32 || b[1] >= h as f32 || b[2] <= 0.0 || b[3] <= 0.0 {
         bail!("--box {b:?} lies outside the {w}x{h} image");
     }
+    let (depth, fill) = if args.depth_fill == "on" {
+        let (depth, stats) = complete(&scene, f, &camera, depth, b)?;
+        (depth, serde_json::json!(stats))
+    } else {
+        (depth, serde_json::Value::Null)
+    };
     let seg = build_segmenter(&args.segmenter, &VisionConfig::default())?;
     let input = SegmentInput {
         color: &image,
@@ -97,7 +111,36 @@ pub fn run(args: SegmentArgs) -> Result<()> {
         "{}",
         serde_json::json!({"frame": f.name, "box": b, "segmenter": seg.name(),
             "pixels": mask.count(), "mask_box": bounds(&mask, 0),
-            "partial": partial, "hidden_sides": sides})
+            "partial": partial, "hidden_sides": sides, "depth_fill": fill})
     );
     Ok(())
+}
+
+/// `frame`'s `depth` with its missing readings inside `b` completed from the scene's other
+/// usable frames and the room's box estimated from all of them, as the service completes
+/// the chosen view's (`agent::view_clouds::complete_anchor_depth`), and what that did.
+fn complete(
+    scene: &import::ImportedScene,
+    frame: &import::ImportedFrame,
+    camera: &crate::geometry::FrameCamera,
+    depth: crate::geometry::DepthMap,
+    b: [f32; 4],
+) -> Result<(crate::geometry::DepthMap, crate::geometry::DepthFillStats)> {
+    let (dw, dh) = scene.depth_size;
+    let mut others = Vec::new();
+    for o in scene.frames.iter().filter(|o| o.usable) {
+        let d = decompress_depth(&o.depth_blob, dw, dh)
+            .with_context(|| format!("frame {}: depth", o.name))?;
+        others.push((o.name == frame.name, scene.camera(o), d));
+    }
+    let params = GeometryParams::default();
+    let all: Vec<_> = others.iter().map(|(_, c, d)| (c, d)).collect();
+    let room = estimate_room(&all, &params.layout);
+    let rest: Vec<_> = others
+        .iter()
+        .filter(|(own, _, _)| !own)
+        .map(|(_, c, d)| (c, d))
+        .collect();
+    fill_depth(camera, &depth, b, &rest, room.as_ref(), &params)
+        .with_context(|| format!("frame {}: depth completion", frame.name))
 }

@@ -44,7 +44,7 @@ fn a_box_in_a_frame_is_segmented_drawn_and_described_and_a_bad_box_is_one_line()
             "--seed",
             "7",
             "--frames",
-            "3",
+            "8",
             "--color-size",
             "320x240",
             "--depth-size",
@@ -89,6 +89,35 @@ fn a_box_in_a_frame_is_segmented_drawn_and_described_and_a_bad_box_is_one_line()
     assert_eq!(drawn.dimensions(), (320, 240));
     // The box's outline is drawn in green.
     assert_eq!(drawn.get_pixel(b[0], (b[1] + b[3]) / 2).0, [0, 255, 0]);
+
+    // The frame's missing depth in the box is completed from the other frames first, as
+    // the service does for the chosen view; `--depth-fill off` leaves it missing.
+    assert!(line["depth_fill"]["missing"].is_u64(), "{line}");
+    let depth_png = scene.join("depth").join("0.png");
+    let mut depth = image::open(&depth_png).expect("depth png").to_luma16();
+    let (dw, cw) = (depth.width(), 320);
+    let to_depth = |v: u32| v * dw / cw;
+    // The box's central half (a quarter of its area) loses its readings.
+    let (qx, qy) = ((b[2] - b[0]) / 4, (b[3] - b[1]) / 4);
+    for y in to_depth(b[1] + qy)..to_depth(b[3] - qy) {
+        for x in to_depth(b[0] + qx)..to_depth(b[2] - qx) {
+            depth.put_pixel(x, y, image::Luma([0]));
+        }
+    }
+    depth.save(&depth_png).expect("depth written");
+    let filled = |fill: &[&str]| {
+        let mut args = vec!["segment", "--frame", "0", "--box", &bx];
+        args.extend_from_slice(fill);
+        args.push("--out");
+        let o = grounder(&args, &[&png, &scene]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let line: serde_json::Value = serde_json::from_slice(&o.stdout).expect("a JSON line");
+        line["depth_fill"].clone()
+    };
+    let on = filled(&[]);
+    assert!(on["missing"].as_u64().is_some_and(|m| m >= 16), "{on}");
+    assert!(on["filled"].as_u64().is_some_and(|f| f > 0), "{on}");
+    assert!(filled(&["--depth-fill", "off"]).is_null());
 
     // A box with no area, a frame the scene lacks: one line on stderr, no image written.
     let none = dir.path().join("none.png");
