@@ -22,6 +22,16 @@ pub struct TestApp {
 
 /// A test server's configuration: SQLite in `data_dir`, or in the PostgreSQL run (see
 /// `pg.rs`) a database of its own on the test cluster.
+/// A shell script that waits for this test process to end (polling once a second), then
+/// runs `then`: a watchdog for what a test starts outside the process (a database cluster,
+/// a mock server), so that a test binary killed or aborted leaves nothing running.
+pub fn after_this_process(then: &str) -> String {
+    format!(
+        "while [ -d /proc/{me} ]; do sleep 1; done; {then}",
+        me = std::process::id()
+    )
+}
+
 pub fn test_config(data_dir: PathBuf) -> Config {
     Config {
         addr: "127.0.0.1:0".into(),

@@ -114,13 +114,12 @@ fn start_cluster() -> Result<String, String> {
         ));
     }
     // The watchdog outlives us by at most a second: it stops the cluster and removes it.
-    let script = format!(
-        "while [ -d /proc/{pid} ]; do sleep 1; done; '{ctl}' -D '{data}' stop -m immediate >/dev/null 2>&1; rm -rf '{dir}'",
-        pid = std::process::id(),
+    let script = crate::helpers::after_this_process(&format!(
+        "'{ctl}' -D '{data}' stop -m immediate >/dev/null 2>&1; rm -rf '{dir}'",
         ctl = pg_ctl.display(),
         data = data.display(),
         dir = dir.display(),
-    );
+    ));
     let mut watchdog = if is_root() {
         let mut c = Command::new("runuser");
         c.args(["-u", "postgres", "--", "sh", "-c", &script]);

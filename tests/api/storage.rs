@@ -35,10 +35,7 @@ impl Drop for Moto {
 
 /// A shell that waits for this test process to end, then kills process `pid`.
 fn watchdog(pid: u32) -> Option<Child> {
-    let script = format!(
-        "while [ -d /proc/{me} ]; do sleep 1; done; kill {pid} 2>/dev/null",
-        me = std::process::id()
-    );
+    let script = crate::helpers::after_this_process(&format!("kill {pid} 2>/dev/null"));
     Command::new("sh")
         .args(["-c", &script])
         .stdin(Stdio::null())
