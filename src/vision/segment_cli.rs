@@ -128,19 +128,20 @@ fn complete(
 ) -> Result<(crate::geometry::DepthMap, crate::geometry::DepthFillStats)> {
     let (dw, dh) = scene.depth_size;
     let mut others = Vec::new();
-    for o in scene.frames.iter().filter(|o| o.usable) {
+    for o in scene
+        .frames
+        .iter()
+        .filter(|o| o.usable && o.name != frame.name)
+    {
         let d = decompress_depth(&o.depth_blob, dw, dh)
             .with_context(|| format!("frame {}: depth", o.name))?;
-        others.push((o.name == frame.name, scene.camera(o), d));
+        others.push((scene.camera(o), d));
     }
     let params = GeometryParams::default();
-    let all: Vec<_> = others.iter().map(|(_, c, d)| (c, d)).collect();
+    let rest: Vec<_> = others.iter().map(|(c, d)| (c, d)).collect();
+    let mut all = rest.clone();
+    all.push((camera, &depth));
     let room = estimate_room(&all, &params.layout);
-    let rest: Vec<_> = others
-        .iter()
-        .filter(|(own, _, _)| !own)
-        .map(|(_, c, d)| (c, d))
-        .collect();
     fill_depth(camera, &depth, b, &rest, room.as_ref(), &params)
         .with_context(|| format!("frame {}: depth completion", frame.name))
 }
