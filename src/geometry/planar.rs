@@ -17,6 +17,8 @@
 //! axes) and a wall layer lies behind that plane (seen from the camera) within
 //! `planar_max_depth`, the box spans from the plane to the wall on that axis.
 
+use std::collections::HashMap;
+
 use nalgebra::Point3;
 use serde::Serialize;
 
@@ -31,6 +33,10 @@ pub struct PlanarSnap {
     pub axis: &'static str,
     /// Interquartile range of the anchor's points on the axis.
     pub iqr: f64,
+    /// How far the readings of one spot scatter on the axis (standard deviation, see
+    /// [`reading_noise`]; 0 on an axis the points spread wider on than on another); the
+    /// plane's own thickness is `iqr` less that share.
+    pub noise: f64,
     /// The front plane (the anchor's front layer on the axis, see `planar_front_share`).
     pub front: f64,
     /// When the anchor's points were ended on the room's wall: the front layer of those
@@ -193,6 +199,45 @@ fn densest_layer(
     Some(front + sign * gaps[lo + best_n / 2])
 }
 
+/// Interquartile range of a normal distribution in standard deviations.
+const IQR_PER_SIGMA: f64 = 1.349;
+
+/// How far the readings of one spot of the surface `points` sample scatter along `axis`
+/// (a normal's standard deviation): the points are binned on the two other axes in square
+/// cells of side `cell`; in each cell of at least three points the median absolute
+/// deviation along `axis` is read (/ 0.6745), and the median over the cells is returned
+/// (0 without such a cell). A depth sensor's noise grows with distance, so a far
+/// picture's readings scatter over centimetres about its one plane; the surface's own
+/// relief (a window's frame before its glass, a curtain's folds) lies in other cells than
+/// one another, so it stays out of this and in the interquartile range.
+fn reading_noise(points: &[Point3<f64>], axis: usize, cell: f64) -> f64 {
+    let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+    let mut cells: HashMap<(i64, i64), Vec<f64>> = HashMap::new();
+    for p in points {
+        let key = ((p[u] / cell).floor() as i64, (p[v] / cell).floor() as i64);
+        cells.entry(key).or_default().push(p[axis]);
+    }
+    let mut mads: Vec<f64> = cells
+        .into_values()
+        .filter(|c| c.len() >= 3)
+        .map(|mut c| {
+            let m = median_of(&mut c);
+            let mut dev: Vec<f64> = c.iter().map(|x| (x - m).abs()).collect();
+            median_of(&mut dev) / 0.6745
+        })
+        .collect();
+    if mads.is_empty() {
+        return 0.0;
+    }
+    median_of(&mut mads)
+}
+
+/// The median of `v` (reordered; not empty).
+fn median_of(v: &mut [f64]) -> f64 {
+    let k = v.len() / 2;
+    *v.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
 /// Nearest a wall may be behind a plane (m): nearer, it is the plane's own noise.
 const MIN_DEPTH: f64 = 0.01;
 
@@ -249,9 +294,26 @@ pub fn snap_planar_to_wall(
         quartiles(anchor, 2),
     ];
     let iqr = |a: usize| qs[a].2 - qs[a].0;
+    // Noise is measured in cells a few fusion voxels across: enough points per cell at the
+    // voxel density, small beside the objects this is for.
+    let cell = (4.0 * params.fusion_voxel).max(0.02);
+    // The sensor's noise lies along the line of sight, across a plane that faces the
+    // camera: on the axis where the points spread least. Along the plane, the cells of the
+    // two other axes are strips across the whole plane, and what they hold is its extent.
+    let across = if iqr(0) <= iqr(1) { 0 } else { 1 };
     for a in 0..2 {
         let others = [(a + 1) % 3, (a + 2) % 3];
-        if iqr(a) > p.planar_iqr || others.iter().any(|&o| iqr(o) < 4.0 * iqr(a).max(0.005)) {
+        // The plane's own thickness: its points' spread on the axis less what the sensor's
+        // noise alone spreads one plane over (variances add).
+        let noise = if a == across && iqr(a) <= iqr(2) {
+            reading_noise(anchor, a, cell)
+        } else {
+            0.0
+        };
+        let thick = (iqr(a).powi(2) - (IQR_PER_SIGMA * noise).powi(2))
+            .max(0.0)
+            .sqrt();
+        if thick > p.planar_iqr || others.iter().any(|&o| iqr(o) < 4.0 * thick.max(0.005)) {
             continue;
         }
         // The wall is on the far side of the plane from the camera.
@@ -338,6 +400,7 @@ pub fn snap_planar_to_wall(
         snaps.push(PlanarSnap {
             axis: NAMES[a],
             iqr: iqr(a),
+            noise,
             front,
             seen_front,
             wall,

@@ -504,3 +504,48 @@ fn a_front_layer_must_stand_out_of_the_noise_before_it() {
     let front = front_layer(&picture, 1, -1.0, 6.98, 0.02, 0.15);
     assert!((front - 6.98).abs() < 0.006, "{front}");
 }
+
+#[test]
+fn a_far_picture_whose_readings_scatter_wider_than_a_plane_is_still_one() {
+    // A picture 3 cm thick on the wall at y = 6.11, its face at 6.08, seen from 5 m: its
+    // readings scatter ±8 cm about the face: their interquartile range is more than a
+    // quarter of that of its 36 cm height (about 18 cm), which a plane's was held to.
+    let picture = plane_y(6.08, (0.7, 1.2), (1.3, 1.66), 0.08, None);
+    let wall = plane_y(
+        6.11,
+        (0.4, 1.5),
+        (1.0, 2.0),
+        0.01,
+        Some([0.7, 1.2, 1.3, 1.66]),
+    );
+    let fused = Aabb::new([0.7, 6.0, 1.3], [1.2, 6.16, 1.66]);
+    let gp = GeometryParams::default();
+    let (b, snaps) = snap_planar_to_wall(&fused, &picture, &wall, None, [1.0, 1.1, 1.5], 0.03, &gp);
+    assert_eq!(snaps.len(), 1, "{snaps:?}");
+    let s = &snaps[0];
+    assert!(s.iqr > gp.support.planar_iqr || 4.0 * s.iqr > 0.18, "{s:?}");
+    assert!(s.noise > 0.015 && s.noise < 0.08, "{s:?}");
+    assert!(s.applied(), "{s:?}");
+    assert!(
+        (b.min[1] - 6.08).abs() < 0.015 && (b.max[1] - 6.11).abs() < 0.01,
+        "{b:?}"
+    );
+    // A noisy cabinet (its front and its top seen) is still no plane: its spread on the
+    // axis is its depth, not its noise.
+    let mut cabinet = plane_y(5.6, (0.7, 1.9), (0.0, 0.9), 0.03, None);
+    for k in 0..25 {
+        cabinet.extend(plane_y(
+            5.6 + 0.02 * k as f64,
+            (0.7, 1.9),
+            (0.9, 0.9),
+            0.03,
+            None,
+        ));
+    }
+    let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
+    assert_eq!(
+        snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 1.0, 1.5], 0.05, &gp),
+        (b, vec![]),
+        "not a plane"
+    );
+}
