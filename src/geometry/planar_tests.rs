@@ -35,18 +35,31 @@ fn plane_y(
     out
 }
 
+/// A flat object's face at y = `face` over `xs` and `zs` (noise `noise`), and the wall at
+/// y = 6.11 around it, 30 cm beyond it on every side (noise 1 cm).
+fn on_wall(
+    face: f64,
+    xs: (f64, f64),
+    zs: (f64, f64),
+    noise: f64,
+) -> (Vec<Point3<f64>>, Vec<Point3<f64>>) {
+    let object = plane_y(face, xs, zs, noise, None);
+    let hole = [xs.0, xs.1, zs.0, zs.1];
+    let wall = plane_y(
+        6.11,
+        (xs.0 - 0.3, xs.1 + 0.3),
+        (zs.0 - 0.3, zs.1 + 0.3),
+        0.01,
+        Some(hole),
+    );
+    (object, wall)
+}
+
 #[test]
 fn a_noisy_window_spans_from_its_plane_to_the_wall() {
     // Window 6 cm deep flush with the wall at y = 6.11; its face at 6.05 seen with
     // ±3 cm of noise, the camera in the room (y < 6).
-    let window = plane_y(6.05, (0.7, 1.9), (1.0, 2.1), 0.03, None);
-    let wall = plane_y(
-        6.11,
-        (0.4, 2.2),
-        (0.7, 2.4),
-        0.01,
-        Some([0.7, 1.9, 1.0, 2.1]),
-    );
+    let (window, wall) = on_wall(6.05, (0.7, 1.9), (1.0, 2.1), 0.03);
     let fused = Aabb::new([0.68, 5.9, 0.98], [1.92, 6.2, 2.12]);
     let (b, snaps) = snap_planar_to_wall(
         &fused,
@@ -379,6 +392,22 @@ fn a_picture_ended_on_the_rooms_wall_keeps_that_wall_over_a_layer_behind_it() {
     assert_eq!(gp.layout.flat_depth_for("pictures"), 0.03);
 }
 
+/// A cabinet 1.2 m wide and 0.9 m tall whose front (y = 5.6, noise `front`) and top (25 rows
+/// back to y = 6.08, noise `top`) are seen.
+fn cabinet(front: f64, top: f64) -> Vec<Point3<f64>> {
+    let mut out = plane_y(5.6, (0.7, 1.9), (0.0, 0.9), front, None);
+    for k in 0..25 {
+        out.extend(plane_y(
+            5.6 + 0.02 * k as f64,
+            (0.7, 1.9),
+            (0.9, 0.9),
+            top,
+            None,
+        ));
+    }
+    out
+}
+
 #[test]
 fn deep_objects_free_standing_planes_and_disabled_settings_are_left_alone() {
     let gp = GeometryParams::default();
@@ -389,23 +418,17 @@ fn deep_objects_free_standing_planes_and_disabled_settings_are_left_alone() {
         0.005,
         Some([0.7, 1.9, 0.0, 1.0]),
     );
-    // A cabinet: its front and its top are seen, so the cloud is no plane.
-    let mut cabinet = plane_y(5.6, (0.7, 1.9), (0.0, 0.9), 0.005, None);
-    for k in 0..25 {
-        cabinet.extend(plane_y(
-            5.6 + 0.02 * k as f64,
-            (0.7, 1.9),
-            (0.9, 0.9),
-            0.0,
-            None,
-        ));
+    // A cabinet: its front and its top are seen, so the cloud is no plane; seen from afar
+    // too, its readings scattered by centimetres: its spread on the axis is its depth.
+    for (front, top) in [(0.005, 0.0), (0.03, 0.03)] {
+        let cabinet = cabinet(front, top);
+        let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
+        assert_eq!(
+            snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp),
+            (b, vec![]),
+            "not a plane ({front}, {top})"
+        );
     }
-    let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
-    assert_eq!(
-        snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp),
-        (b, vec![]),
-        "not a plane"
-    );
     // A screen standing 40 cm in front of the wall: the wall is too far to be its back.
     let screen = plane_y(5.7, (0.7, 1.9), (0.2, 0.9), 0.02, None);
     let b = Aabb::new([0.7, 5.66, 0.2], [1.9, 5.74, 0.9]);
@@ -510,14 +533,7 @@ fn a_far_picture_whose_readings_scatter_wider_than_a_plane_is_still_one() {
     // A picture 3 cm thick on the wall at y = 6.11, its face at 6.08, seen from 5 m: its
     // readings scatter ±8 cm about the face: their interquartile range is more than a
     // quarter of that of its 36 cm height (about 18 cm), which a plane's was held to.
-    let picture = plane_y(6.08, (0.7, 1.2), (1.3, 1.66), 0.08, None);
-    let wall = plane_y(
-        6.11,
-        (0.4, 1.5),
-        (1.0, 2.0),
-        0.01,
-        Some([0.7, 1.2, 1.3, 1.66]),
-    );
+    let (picture, wall) = on_wall(6.08, (0.7, 1.2), (1.3, 1.66), 0.08);
     let fused = Aabb::new([0.7, 6.0, 1.3], [1.2, 6.16, 1.66]);
     let gp = GeometryParams::default();
     let (b, snaps) = snap_planar_to_wall(&fused, &picture, &wall, None, [1.0, 1.1, 1.5], 0.03, &gp);
@@ -529,23 +545,5 @@ fn a_far_picture_whose_readings_scatter_wider_than_a_plane_is_still_one() {
     assert!(
         (b.min[1] - 6.08).abs() < 0.015 && (b.max[1] - 6.11).abs() < 0.01,
         "{b:?}"
-    );
-    // A noisy cabinet (its front and its top seen) is still no plane: its spread on the
-    // axis is its depth, not its noise.
-    let mut cabinet = plane_y(5.6, (0.7, 1.9), (0.0, 0.9), 0.03, None);
-    for k in 0..25 {
-        cabinet.extend(plane_y(
-            5.6 + 0.02 * k as f64,
-            (0.7, 1.9),
-            (0.9, 0.9),
-            0.03,
-            None,
-        ));
-    }
-    let b = Aabb::new([0.7, 5.6, 0.0], [1.9, 6.1, 0.9]);
-    assert_eq!(
-        snap_planar_to_wall(&b, &cabinet, &wall, None, [1.3, 1.0, 1.5], 0.05, &gp),
-        (b, vec![]),
-        "not a plane"
     );
 }
