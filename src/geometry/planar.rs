@@ -22,7 +22,7 @@ use std::collections::HashMap;
 use nalgebra::Point3;
 use serde::Serialize;
 
-use super::cloud::{remove_statistical_outliers, voxel_downsample};
+use super::cloud::{median, remove_statistical_outliers, voxel_downsample};
 use super::support::SupportParams;
 use super::{Aabb, GeometryParams, RoomLayout};
 
@@ -221,21 +221,12 @@ fn reading_noise(points: &[Point3<f64>], axis: usize, cell: f64) -> f64 {
         .into_values()
         .filter(|c| c.len() >= 3)
         .map(|mut c| {
-            let m = median_of(&mut c);
+            let m = median(&mut c);
             let mut dev: Vec<f64> = c.iter().map(|x| (x - m).abs()).collect();
-            median_of(&mut dev) / 0.6745
+            median(&mut dev) / 0.6745
         })
         .collect();
-    if mads.is_empty() {
-        return 0.0;
-    }
-    median_of(&mut mads)
-}
-
-/// The median of `v` (reordered; not empty).
-fn median_of(v: &mut [f64]) -> f64 {
-    let k = v.len() / 2;
-    *v.select_nth_unstable_by(k, f64::total_cmp).1
+    median(&mut mads)
 }
 
 /// Nearest a wall may be behind a plane (m): nearer, it is the plane's own noise.
