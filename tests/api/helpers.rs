@@ -20,8 +20,6 @@ pub struct TestApp {
     handle: Option<tokio::task::JoinHandle<()>>,
 }
 
-/// A test server's configuration: SQLite in `data_dir`, or in the PostgreSQL run (see
-/// `pg.rs`) a database of its own on the test cluster.
 /// A shell script that waits for this test process to end (polling once a second), then
 /// runs `then`: a watchdog for what a test starts outside the process (a database cluster,
 /// a mock server), so that a test binary killed or aborted leaves nothing running.
@@ -32,6 +30,8 @@ pub fn after_this_process(then: &str) -> String {
     )
 }
 
+/// A test server's configuration: SQLite in `data_dir`, or in the PostgreSQL run (see
+/// `pg.rs`) a database of its own on the test cluster.
 pub fn test_config(data_dir: PathBuf) -> Config {
     Config {
         addr: "127.0.0.1:0".into(),
