@@ -277,3 +277,27 @@ impl DepthSegmenter {
         }
     }
 }
+
+/// Same surface colour under different light: the chromaticities (each channel's share
+/// of the sum) differ by at most `tol / 765` in sum, and the brightness by at most a
+/// factor of 4 (a face turned from the light). Near-black colours (sum under 45) carry no
+/// reliable hue: they match each other.
+pub(crate) fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
+    let (sm, sc) = (
+        mid.iter().sum::<f64>(),
+        c.iter().map(|&v| f64::from(v)).sum::<f64>(),
+    );
+    const DARK: f64 = 45.0;
+    if sm < DARK || sc < DARK {
+        return sm < DARK && sc < DARK;
+    }
+    if sc > 4.0 * sm || sm > 4.0 * sc {
+        return false;
+    }
+    let d: f64 = mid
+        .iter()
+        .zip(c)
+        .map(|(m, &v)| (m / sm - f64::from(v) / sc).abs())
+        .sum();
+    d <= tol / 765.0 * 3.0
+}

@@ -29,8 +29,9 @@
 //! of one object (a lamp's shade in front of its pole), keeping only the pieces that adds
 //! inside the box, and not when the whole runs past the margin itself.
 //! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
-//! its size and of its colour (a window's panes either side of its mullion). Small holes
-//! (missing depth) are closed and depth-less pixels whose colour matches the region are
+//! its size and of its colour (a window's panes either side of its mullion), and the pieces
+//! of its colour that a nearer surface cuts off from it (a chair's legs below the table top
+//! that hides its seat) are added. Small holes (missing depth) are closed and depth-less pixels whose colour matches the region are
 //! added back.
 
 use anyhow::{bail, Result};
@@ -41,6 +42,9 @@ use crate::geometry::mask::Mask;
 
 mod cells;
 mod growth;
+mod hidden;
+
+pub(crate) use cells::same_hue;
 
 use growth::Reach;
 
@@ -95,6 +99,10 @@ pub struct DepthSegmenter {
     /// end within it compete again: at half its score behind it, at `group_below` before it
     /// (spec `depth:within=off` turns it off, and the segmenter is then the one before it).
     pub prefer_within: bool,
+    /// Add the pieces of the object's colour that a nearer surface cuts off from the chosen
+    /// one in the image (a chair's legs below the table top that hides its seat; spec
+    /// `hidden=off` turns it off). See [`Self::with_hidden_parts`].
+    pub hidden_parts: bool,
 }
 
 impl Default for DepthSegmenter {
@@ -117,6 +125,7 @@ impl Default for DepthSegmenter {
             group_per_m: 0.05,
             weak_mode: 0.1,
             prefer_within: true,
+            hidden_parts: true,
         }
     }
 }
@@ -125,7 +134,7 @@ impl DepthSegmenter {
     /// Options after `depth:`, comma-separated: `edges=on|off` ([`Self::block_edges`]),
     /// `colour=on|off` ([`Self::colour_alternative`]), `groups=on|off`
     /// ([`Self::group_alternative`]), `weak=on|off` ([`Self::weak_mode`]), `within=on|off`
-    /// ([`Self::prefer_within`]).
+    /// ([`Self::prefer_within`]), `hidden=on|off` ([`Self::hidden_parts`]).
     pub fn from_spec(spec: &str) -> Result<Self> {
         let mut d = Self::default();
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
@@ -140,9 +149,11 @@ impl DepthSegmenter {
                 Some(("weak", "off")) => d.weak_mode = 0.0,
                 Some(("within", "on")) => d.prefer_within = true,
                 Some(("within", "off")) => d.prefer_within = false,
+                Some(("hidden", "on")) => d.hidden_parts = true,
+                Some(("hidden", "off")) => d.hidden_parts = false,
                 _ => bail!(
                     "unknown depth segmenter option `{part}` (expected edges=on|off, \
-                     colour=on|off, groups=on|off, weak=on|off or within=on|off)"
+                     colour=on|off, groups=on|off, weak=on|off, within=on|off or hidden=on|off)"
                 ),
             }
         }
@@ -233,30 +244,6 @@ enum Colour {
     Rgb,
     /// Of the seeds' hue whatever the shading ([`same_hue`]).
     Hue,
-}
-
-/// Same surface colour under different light: the chromaticities (each channel's share
-/// of the sum) differ by at most `tol / 765` in sum, and the brightness by at most a
-/// factor of 4 (a face turned from the light). Near-black colours (sum under 45) carry no
-/// reliable hue: they match each other.
-pub(crate) fn same_hue(mid: &[f64; 3], c: &[u8; 3], tol: f64) -> bool {
-    let (sm, sc) = (
-        mid.iter().sum::<f64>(),
-        c.iter().map(|&v| f64::from(v)).sum::<f64>(),
-    );
-    const DARK: f64 = 45.0;
-    if sm < DARK || sc < DARK {
-        return sm < DARK && sc < DARK;
-    }
-    if sc > 4.0 * sm || sm > 4.0 * sc {
-        return false;
-    }
-    let d: f64 = mid
-        .iter()
-        .zip(c)
-        .map(|(m, &v)| (m / sm - f64::from(v) / sc).abs())
-        .sum();
-    d <= tol / 765.0 * 3.0
 }
 
 impl DepthSegmenter {
@@ -562,6 +549,9 @@ impl Segmenter for DepthSegmenter {
             return Ok(Mask::from_box(cw, ch, bbox));
         };
         let mut region = Self::main_components(&g, &region, self.colour_tol);
+        if self.hidden_parts {
+            region = self.with_hidden_parts(&g, &region, cell_px, fx_depth, (cw, ch));
+        }
         Self::close_edges(&g, &mut region);
         Self::fill_holes(&g, &mut region);
         let mut mask = Mask::new(cw, ch);

@@ -257,3 +257,59 @@ fn a_lamp_whose_wall_explains_the_box_is_still_its_shade_and_pole() {
         wall.iou(&lamp)
     );
 }
+
+#[test]
+fn a_chairs_legs_below_the_table_top_that_hides_its_seat_join_its_back() {
+    // A grey chair pushed to the far side of a dark table, seen from across it: the table
+    // top hides the seat, so the back shows above it and the legs below it, under the
+    // table. No growth crosses the table between them; the legs are the chair's colour
+    // and lie within the chair's own extent of its back's depth, so they join.
+    let floor = ([-1.0, -3.0, -0.1], [6.0, 3.0, 0.0], [150, 110, 70]);
+    let grey = [120, 118, 118];
+    let (y0, y1) = (0.35, 0.79);
+    let legs = [(2.35, y0), (2.35, y1 - 0.03), (2.77, y0), (2.77, y1 - 0.03)]
+        .map(|(x, y)| ([x, y, 0.0], [x + 0.03, y + 0.03, 0.42], grey));
+    let seat = ([2.35, y0, 0.42], [2.8, y1, 0.46], grey);
+    let back = ([2.75, y0, 0.46], [2.8, y1, 0.95], grey);
+    let top = ([1.5, -0.6, 0.72], [2.3, 0.6, 0.75], [50, 50, 55]);
+    let table_legs = [(1.5, -0.6), (1.5, 0.56), (2.26, -0.6), (2.26, 0.56)]
+        .map(|(x, y)| ([x, y, 0.0], [x + 0.04, y + 0.04, 0.72], [50, 50, 55]));
+    let wall = ([3.6, -3.0, 0.0], [3.7, 3.0, 3.0], [200, 200, 195]);
+    let parts = [
+        floor,
+        legs[0],
+        legs[1],
+        legs[2],
+        legs[3],
+        seat,
+        back,
+        top,
+        table_legs[0],
+        table_legs[1],
+        table_legs[2],
+        table_legs[3],
+        wall,
+    ];
+    let (eye, at) = (Point3::new(0.6, -0.2, 1.3), Point3::new(2.5, 0.5, 0.45));
+    let v = Rendered::new(&parts, eye, at, 6);
+    let legs_seen = Rendered::new(&parts, eye, at, 4).object;
+    let held = |m: &Mask| {
+        let both = m
+            .data
+            .iter()
+            .zip(&legs_seen.data)
+            .filter(|(a, b)| **a && **b);
+        both.count() as f64 / legs_seen.count().max(1) as f64
+    };
+    assert!(legs_seen.count() > 40, "the legs show below the table top");
+    let m = v.segment("");
+    let (on, legs_in) = (v.share_on(&m), held(&m));
+    assert!(
+        on > 0.9 && legs_in > 0.6,
+        "on the chair {on}, legs held {legs_in} (box {:?})",
+        v.bbox()
+    );
+    // Without joining hidden parts the mask is the back alone.
+    let alone = held(&v.segment("hidden=off"));
+    assert!(alone < 0.2, "legs held {alone} with hidden=off");
+}
