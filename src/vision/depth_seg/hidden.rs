@@ -89,22 +89,33 @@ impl DepthSegmenter {
             (y.saturating_sub(r)..(y + r + 1).min(g.h))
                 .flat_map(move |y| xs.clone().map(move |x| y * g.w + x))
         };
-        // The cells within the gap of the region.
+        // The cells within the gap of the region's outline.
         let mut by_region = vec![false; region.len()];
-        for i in (0..region.len()).filter(|&i| region[i]) {
+        let outline = (0..region.len())
+            .filter(|&i| region[i] && g.neighbours(i).into_iter().flatten().any(|j| !region[j]));
+        for i in outline {
             around(i).for_each(|j| by_region[j] = true);
         }
-        // The surfaces not of the object's colour, each with whether it hides part of the
-        // region: nearer than a region cell within the gap by a step.
-        let (mut surface, mut hides) = (vec![usize::MAX; region.len()], Vec::new());
+        // The occluders: the surfaces of another colour that are nearer than a region cell
+        // within the gap by a step somewhere, grown from those cells.
         let other = |i: usize| !region[i] && g.z[i] > 0.0 && !like[i];
-        for (k, cells) in surfaces(g, other, &step).into_iter().enumerate() {
-            let before = |o: usize| {
-                let near = |r: usize| region[r] && g.z[o] < g.z[r] - step(g.z[r]);
-                by_region[o] && around(o).any(near)
-            };
-            hides.push(cells.iter().any(|&o| before(o)));
-            cells.iter().for_each(|&o| surface[o] = k);
+        let before = |o: usize| {
+            let near = |r: usize| region[r] && g.z[o] < g.z[r] - step(g.z[r]);
+            by_region[o] && other(o) && around(o).any(near)
+        };
+        let mut hiding = vec![false; region.len()];
+        let mut queue: Vec<usize> = (0..region.len()).filter(|&o| before(o)).collect();
+        if queue.is_empty() {
+            return out;
+        }
+        queue.iter().for_each(|&o| hiding[o] = true);
+        while let Some(i) = queue.pop() {
+            for j in g.neighbours(i).into_iter().flatten() {
+                if !hiding[j] && other(j) && (g.z[i] - g.z[j]).abs() <= step(g.z[i].min(g.z[j])) {
+                    hiding[j] = true;
+                    queue.push(j);
+                }
+            }
         }
         let s = g.s as usize;
         let on_edge = |i: usize| {
@@ -120,14 +131,15 @@ impl DepthSegmenter {
             {
                 continue;
             }
-            let hidden = piece.iter().any(|&p| {
-                around(p).any(|o| {
-                    surface[o] != usize::MAX && hides[surface[o]] && g.z[o] < g.z[p] - step(g.z[p])
-                })
-            });
+            let hidden = piece
+                .iter()
+                .any(|&p| around(p).any(|o| hiding[o] && g.z[o] < g.z[p] - step(g.z[p])));
+            if !hidden {
+                continue;
+            }
             let mut cut = vec![false; region.len()];
             piece.iter().for_each(|&i| cut[i] = true);
-            if hidden && !Self::lies_flat(g, &cut) {
+            if !Self::lies_flat(g, &cut) {
                 piece.iter().for_each(|&i| out[i] = true);
             }
         }
