@@ -154,27 +154,8 @@ fn surfaces(
     member: impl Fn(usize) -> bool,
     step: &dyn Fn(f64) -> f64,
 ) -> Vec<Vec<usize>> {
-    let mut seen = vec![false; g.z.len()];
-    let mut out = Vec::new();
-    for start in 0..g.z.len() {
-        if seen[start] || !member(start) {
-            continue;
-        }
-        seen[start] = true;
-        let mut piece = vec![start];
-        let mut k = 0;
-        while k < piece.len() {
-            let i = piece[k];
-            for j in g.neighbours(i).into_iter().flatten() {
-                let (a, b) = (g.z[i], g.z[j]);
-                if !seen[j] && member(j) && (a - b).abs() <= step(a.min(b)) {
-                    seen[j] = true;
-                    piece.push(j);
-                }
-            }
-            k += 1;
-        }
-        out.push(piece);
-    }
-    out
+    g.joined(member, |i, j| {
+        let (a, b) = (g.z[i], g.z[j]);
+        (a - b).abs() <= step(a.min(b))
+    })
 }

@@ -198,6 +198,15 @@ impl Grid {
     /// The 4-connected components of the cells for which `member` holds, each as its
     /// cells, in the order of their first cell in the grid.
     fn components(&self, member: impl Fn(usize) -> bool) -> Vec<Vec<usize>> {
+        self.joined(member, |_, _| true)
+    }
+
+    /// [`Self::components`] where neighbours `i`, `j` join only when `join(i, j)` holds.
+    fn joined(
+        &self,
+        member: impl Fn(usize) -> bool,
+        join: impl Fn(usize, usize) -> bool,
+    ) -> Vec<Vec<usize>> {
         let mut seen = vec![false; self.z.len()];
         let mut out = Vec::new();
         for start in 0..self.z.len() {
@@ -208,8 +217,9 @@ impl Grid {
             let mut piece = vec![start];
             let mut k = 0;
             while k < piece.len() {
-                for j in self.neighbours(piece[k]).into_iter().flatten() {
-                    if !seen[j] && member(j) {
+                let i = piece[k];
+                for j in self.neighbours(i).into_iter().flatten() {
+                    if !seen[j] && member(j) && join(i, j) {
                         seen[j] = true;
                         piece.push(j);
                     }
