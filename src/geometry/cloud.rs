@@ -104,6 +104,17 @@ pub fn cluster_keep(points: &[Point3<f64>], voxel: f64, min_fraction: f64) -> Ve
     if voxel <= 0.0 || points.is_empty() {
         return vec![true; points.len()];
     }
+    let (label, sizes) = cluster_labels(points, voxel);
+    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
+    label
+        .iter()
+        .map(|&c| sizes[c] as f64 >= min_fraction * largest)
+        .collect()
+}
+
+/// The clusters of [`cluster_keep`] (`voxel` > 0): each point's cluster and each
+/// cluster's number of points.
+pub fn cluster_labels(points: &[Point3<f64>], voxel: f64) -> (Vec<usize>, Vec<usize>) {
     let key = |p: &Point3<f64>| {
         (
             (p.x / voxel).floor() as i64,
@@ -160,11 +171,8 @@ pub fn cluster_keep(points: &[Point3<f64>], voxel: f64, min_fraction: f64) -> Ve
             }
         }
     }
-    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
-    point_cell
-        .iter()
-        .map(|&c| sizes[label[c]] as f64 >= min_fraction * largest)
-        .collect()
+    let point_label = point_cell.iter().map(|&c| label[c]).collect();
+    (point_label, sizes)
 }
 
 /// Evenly spaced subset of at most `max` points (every k-th point); `max == 0` keeps all.

@@ -69,6 +69,10 @@ pub struct ConsensusParams {
     /// At most this many of the frames that see the points' box are used (evenly spread
     /// over the scan; 0 = all): the cost is one projection per point and frame.
     pub max_carve_frames: usize,
+    /// With `free_space`: a detached cluster the fusion would drop as a stray stays when
+    /// no frame has seen the gap between it and the object empty (`geometry::bridge`): a
+    /// chair's legs below the table top that hides its seat from every view.
+    pub bridge_unseen: bool,
 }
 
 impl Default for ConsensusParams {
@@ -85,6 +89,7 @@ impl Default for ConsensusParams {
             free_space: true,
             min_seen_through: 2,
             max_carve_frames: 20,
+            bridge_unseen: true,
         }
     }
 }

@@ -6,7 +6,7 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    cluster_keep, directional_chamfers, outliers_and_neighbours, subsample_even, voxel_downsample,
+    cluster_labels, directional_chamfers, outliers_and_neighbours, subsample_even, voxel_downsample,
 };
 use super::knn::{neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours};
 use super::projection::{project_points, Projected, ProjectionError};
@@ -274,7 +274,7 @@ pub fn fuse_clouds(
         .as_deref()
         .filter(|_| params.sor_neighbors >= 2)
         .map(|nn| (fused.as_slice(), kept_idx.as_slice(), nn));
-    let kept = drop_detached(kept, spacing_from, params);
+    let kept = drop_detached(kept, spacing_from, carve, params);
     let (aabb, flattened) = match trimmed_box(&kept, params.box_trim) {
         Some(b) => {
             let (b, axes) = flatten_noisy_planes(b, &kept, params.plane_iqr);
@@ -298,14 +298,18 @@ pub fn fuse_clouds(
 /// A cloud, the indices of the points taken from it and its neighbour lists.
 type Known<'a> = (&'a [Point3<f64>], &'a [usize], &'a [Neighbours]);
 
-/// [`cluster_keep`] with cells no finer than three times the cloud's median neighbour
+/// [`super::cloud::cluster_keep`] with cells no finer than three times the cloud's median neighbour
 /// spacing, so a sparse cloud (far away, low-resolution depth) is not cut into pieces.
 ///
 /// `known`: the cloud `points` was taken from, their indices in it, and its neighbour lists
 /// for `sor_neighbors` (>= 2) nearest points, which spare most of the searches.
+///
+/// `carve` (the fusion's free-space test, with `consensus.bridge_unseen`) keeps a dropped
+/// cluster that nothing seen empty parts from the rest ([`super::bridge::keep_bridged`]).
 fn drop_detached(
     points: Vec<Point3<f64>>,
     known: Option<Known<'_>>,
+    carve: Option<Carve<'_>>,
     params: &GeometryParams,
 ) -> Vec<Point3<f64>> {
     if params.cluster_voxel <= 0.0 || points.len() < 10 {
@@ -319,11 +323,18 @@ fn drop_detached(
     let mut d: Vec<f64> = mean.into_iter().filter(|d| *d >= 0.0).collect();
     d.sort_by(f64::total_cmp);
     let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
-    let keep = cluster_keep(
-        &points,
-        params.cluster_voxel.max(3.0 * spacing),
-        params.min_cluster_fraction,
-    );
+    let voxel = params.cluster_voxel.max(3.0 * spacing);
+    let (label, sizes) = cluster_labels(&points, voxel);
+    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
+    let mut keep: Vec<bool> = label
+        .iter()
+        .map(|&c| sizes[c] as f64 >= params.min_cluster_fraction * largest)
+        .collect();
+    if let Some(carve) = carve.filter(|_| params.consensus.bridge_unseen) {
+        if keep.iter().any(|k| !k) {
+            super::bridge::keep_bridged(&points, &label, &sizes, &mut keep, voxel, carve);
+        }
+    }
     super::consensus::retain(&points, &keep)
 }
 

@@ -16,6 +16,7 @@
 
 pub mod bound;
 pub mod boxes;
+pub mod bridge;
 pub mod camera;
 pub mod cloud;
 pub mod consensus;

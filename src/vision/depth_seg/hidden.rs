@@ -19,14 +19,17 @@ impl DepthSegmenter {
     /// growth crosses the table between them, so every view of it keeps only the back and
     /// the box comes out a few centimetres deep. A piece is a surface (4-connected cells
     /// whose depths differ by at most a growth step)
-    /// - within the region's own extent (its height span or its width, the larger) of the
-    ///   region's depths: another object of that colour stands farther away;
+    /// - within the region's own extent (its height span or its width, the larger) nearer
+    ///   than the region's depths, and no farther than them by more than a growth step:
+    ///   another object of that colour stands farther away, and so does the room behind
+    ///   the object (a wall of a bed's colour above the pillows that hide it);
     /// - at least nine in ten of them in the box and none on the frame's edge (`size`), as
     ///   for [`Self::with_parts`], not lying flat ([`Self::lies_flat`]: a floor of the
     ///   object's colour), and of at least `MIN_CELLS` cells and `MIN_SHARE` of the region;
     /// - of the region's colour more strictly than growth takes it (its hue at half
     ///   `colour_tol`, its brightness within a factor `MAX_SHADE`), as nothing but colour
     ///   vouches for a piece across an occluder;
+    /// - not touching the region: there growth refused it across a depth step;
     /// - bordering (within `GAP_PX`, where depth is often missing) a surface of another
     ///   colour nearer than itself by a growth step, a surface that also borders the region
     ///   nearer than it by a step: one occluder hides what lies between them. A surface of
@@ -75,7 +78,7 @@ impl DepthSegmenter {
             .map(|i| {
                 !region[i]
                     && g.z[i] > 0.0
-                    && (zlo - ext..=zhi + ext).contains(&g.z[i])
+                    && (zlo - ext..=zhi + step(zhi)).contains(&g.z[i])
                     && same_hue(&mid, &g.rgb[i], self.colour_tol / 2.0)
                     && bright(i) <= MAX_SHADE * lum
                     && lum <= MAX_SHADE * bright(i)
@@ -125,9 +128,13 @@ impl DepthSegmenter {
         let least = MIN_CELLS.max((MIN_SHARE * cells.len() as f64).ceil() as usize);
         for piece in surfaces(g, |i| like[i], &step) {
             let outside = piece.iter().filter(|&&i| !g.inb[i]).count();
+            // A piece the region touches is a surface growth refused across a depth
+            // step (a chair's back before a cabinet of its colour), not one an occluder
+            // cut off.
+            let touches = |i: usize| g.neighbours(i).into_iter().flatten().any(|j| region[j]);
             if piece.len() < least
                 || outside * 10 > piece.len()
-                || piece.iter().any(|&i| on_edge(i))
+                || piece.iter().any(|&i| on_edge(i) || touches(i))
             {
                 continue;
             }

@@ -31,7 +31,7 @@
 //! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
 //! its size and of its colour (a window's panes either side of its mullion), and the pieces
 //! of its colour that a nearer surface cuts off from it (a chair's legs below the table top
-//! that hides its seat) are added with `hidden=on`. Small holes (missing depth) are closed
+//! that hides its seat) are added (`hidden=off` does not). Small holes (missing depth) are closed
 //! and depth-less pixels whose colour matches the region are added back.
 
 use anyhow::{bail, Result};
@@ -101,8 +101,7 @@ pub struct DepthSegmenter {
     pub prefer_within: bool,
     /// Add the pieces of the object's colour that a nearer surface cuts off from the chosen
     /// one in the image (a chair's legs below the table top that hides its seat; spec
-    /// `hidden=on`). See [`Self::with_hidden_parts`]. Off by default: on the test suite's
-    /// small scenes it lowered the VLM-box test below its bar (a bed's mask went astray).
+    /// `hidden=off` turns it off). See [`Self::with_hidden_parts`].
     pub hidden_parts: bool,
 }
 
@@ -126,7 +125,7 @@ impl Default for DepthSegmenter {
             group_per_m: 0.05,
             weak_mode: 0.1,
             prefer_within: true,
-            hidden_parts: false,
+            hidden_parts: true,
         }
     }
 }
