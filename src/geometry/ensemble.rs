@@ -298,8 +298,9 @@ pub fn fuse_clouds(
 /// A cloud, the indices of the points taken from it and its neighbour lists.
 type Known<'a> = (&'a [Point3<f64>], &'a [usize], &'a [Neighbours]);
 
-/// [`super::cloud::cluster_keep`] with cells no finer than three times the cloud's median neighbour
-/// spacing, so a sparse cloud (far away, low-resolution depth) is not cut into pieces.
+/// [`super::cloud::cluster_keep`] with cells no finer than three times the cloud's median
+/// neighbour spacing, so a sparse cloud (far away, low-resolution depth) is not cut into
+/// pieces.
 ///
 /// `known`: the cloud `points` was taken from, their indices in it, and its neighbour lists
 /// for `sor_neighbors` (>= 2) nearest points, which spare most of the searches.

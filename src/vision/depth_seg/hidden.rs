@@ -22,7 +22,8 @@ impl DepthSegmenter {
     /// - within the region's own extent (its height span or its width, the larger) nearer
     ///   than the region's depths, and no farther than them by more than a growth step:
     ///   another object of that colour stands farther away, and so does the room behind
-    ///   the object (a wall of a bed's colour above the pillows that hide it);
+    ///   the object (a wall of its colour), while what an occluder hides of it lies no
+    ///   deeper than what shows;
     /// - at least nine in ten of them in the box and none on the frame's edge (`size`), as
     ///   for [`Self::with_parts`], not lying flat ([`Self::lies_flat`]: a floor of the
     ///   object's colour), and of at least `MIN_CELLS` cells and `MIN_SHARE` of the region;

@@ -31,8 +31,8 @@
 //! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
 //! its size and of its colour (a window's panes either side of its mullion), and the pieces
 //! of its colour that a nearer surface cuts off from it (a chair's legs below the table top
-//! that hides its seat) are added (`hidden=off` does not). Small holes (missing depth) are closed
-//! and depth-less pixels whose colour matches the region are added back.
+//! that hides its seat) are added (not with `hidden=off`). Small holes (missing depth) are
+//! closed and depth-less pixels whose colour matches the region are added back.
 
 use anyhow::{bail, Result};
 
