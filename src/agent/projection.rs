@@ -548,7 +548,7 @@ pub async fn run(
         .map(|(v, (_, b, from))| {
             let d = fusion.views.iter().find(|d| d.index == v.index);
             json!({"image_id": format!("{:05}", v.index), "visible_fraction": v.visible_fraction, "footprint": v.bbox, "box": b, "box_from_detection": *from == BoxFrom::Detection, "box_from": from,
-                   "chamfer": d.and_then(|d| d.chamfer), "cover": d.and_then(|d| d.cover), "kept": d.is_some_and(|d| d.kept), "points": d.map(|d| d.points), "depth_fill": fills.get(&v.index).cloned().unwrap_or_default()})
+                   "chamfer": d.and_then(|d| d.chamfer), "cover": d.and_then(|d| d.cover), "kept": d.is_some_and(|d| d.kept), "complements": d.is_some_and(|d| d.complements), "agreement": d.and_then(|d| d.agreement), "beyond_cut": d.and_then(|d| d.beyond_cut), "points": d.map(|d| d.points), "depth_fill": fills.get(&v.index).cloned().unwrap_or_default()})
         })
         .collect();
     step(

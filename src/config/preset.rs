@@ -30,6 +30,7 @@ impl Method {
         g.plane_iqr = 0.0;
         g.consensus.mask_votes = false;
         g.consensus.free_space = false;
+        g.consensus.complement_agree = 0.0;
         g.consensus.anchor_box_bound = false;
         g.consensus.detection_bound = false;
         g.depth_fill.enabled = false;
@@ -57,6 +58,7 @@ mod tests {
         assert_eq!(g.chamfer_cover_threshold, 0.0);
         assert_eq!(g.cluster_voxel, 0.0);
         assert!(!g.consensus.mask_votes && !g.consensus.free_space);
+        assert_eq!(g.consensus.complement_agree, 0.0);
         assert!(!g.consensus.anchor_box_bound && !g.consensus.detection_bound);
         assert!(!g.depth_fill.enabled && !g.layout.enabled && !g.support.enabled);
         assert!(!g.round_back.enabled);

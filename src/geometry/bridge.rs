@@ -9,14 +9,62 @@
 
 use nalgebra::Point3;
 
+use super::cloud::cluster_labels;
 use super::ensemble::Carve;
-use super::knn::build_tree;
+use super::knn::{
+    build_tree, neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours,
+};
+use super::GeometryParams;
 
 /// Fewest points a dropped cluster must hold to be joined back: fewer is noise.
 const MIN_POINTS: usize = 8;
 /// Farthest (m) a dropped cluster may lie from the kept points: an object's own parts lie
 /// within its size of each other, and the room's furniture is rarely larger.
-const MAX_GAP: f64 = 1.0;
+pub(super) const MAX_GAP: f64 = 1.0;
+
+/// A cloud, the indices of the points taken from it and its neighbour lists.
+pub(super) type Known<'a> = (&'a [Point3<f64>], &'a [usize], &'a [Neighbours]);
+
+/// [`super::cloud::cluster_keep`] with cells no finer than three times the cloud's median
+/// neighbour spacing, so a sparse cloud (far away, low-resolution depth) is not cut into
+/// pieces.
+///
+/// `known`: the cloud `points` was taken from, their indices in it, and its neighbour lists
+/// for `sor_neighbors` (>= 2) nearest points, which spare most of the searches.
+///
+/// `carve` (the fusion's free-space test, with `consensus.bridge_unseen`) keeps a dropped
+/// cluster that nothing seen empty parts from the rest ([`keep_bridged`]).
+pub(super) fn drop_detached(
+    points: Vec<Point3<f64>>,
+    known: Option<Known<'_>>,
+    carve: Option<Carve<'_>>,
+    params: &GeometryParams,
+) -> Vec<Point3<f64>> {
+    if params.cluster_voxel <= 0.0 || points.len() < 10 {
+        return points;
+    }
+    let k = params.sor_neighbors.max(2);
+    let mean = match known {
+        Some((cloud, kept, nn)) => neighbour_mean_distances_of_subset(cloud, kept, nn, k),
+        None => neighbour_mean_distances(&points, k),
+    };
+    let mut d: Vec<f64> = mean.into_iter().filter(|d| *d >= 0.0).collect();
+    d.sort_by(f64::total_cmp);
+    let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
+    let voxel = params.cluster_voxel.max(3.0 * spacing);
+    let (label, sizes) = cluster_labels(&points, voxel);
+    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
+    let mut keep: Vec<bool> = label
+        .iter()
+        .map(|&c| sizes[c] as f64 >= params.min_cluster_fraction * largest)
+        .collect();
+    if let Some(carve) = carve.filter(|_| params.consensus.bridge_unseen) {
+        if keep.iter().any(|k| !k) {
+            keep_bridged(&points, &label, &sizes, &mut keep, voxel, carve);
+        }
+    }
+    super::consensus::retain(&points, &keep)
+}
 
 /// `keep` (flags over `points` from [`super::cloud::cluster_labels`]' clusters, `label`
 /// and `sizes`) with each dropped cluster of at least [`MIN_POINTS`] points kept again

@@ -73,6 +73,12 @@ pub struct ConsensusParams {
     /// no frame has seen the gap between it and the object empty (`geometry::bridge`): a
     /// chair's legs below the table top that hides its seat from every view.
     pub bridge_unseen: bool,
+    /// When the chosen view saw only part of its object, a view the chamfer test dropped
+    /// is kept when the chosen frame agrees with it ([`anchor_agreement`]): of the view's
+    /// points that frame sees, at least this share lies on its mask. The view then holds
+    /// the part both saw and a part the chosen frame could not see (beyond its edge,
+    /// hidden): a floor lamp's shade above a close-up of its pole. 0 turns it off.
+    pub complement_agree: f64,
 }
 
 impl Default for ConsensusParams {
@@ -90,6 +96,7 @@ impl Default for ConsensusParams {
             min_seen_through: 2,
             max_carve_frames: 20,
             bridge_unseen: true,
+            complement_agree: 0.8,
         }
     }
 }
@@ -266,6 +273,40 @@ pub fn mask_votes(
                     con <= pro
                 })
                 .collect()
+        })
+        .collect()
+}
+
+/// How the chosen view's frame (`anchor`) judges other views' clouds: per cloud
+/// `[seen, on_mask]`, the points it sees (on its measured surface, or seen through: it saw
+/// empty space there) and those of them on its mask (with the votes' tolerance). What the
+/// frame cannot see (beyond its image's edge or its mask's `region`, hidden behind a
+/// nearer surface, no depth reading) it says nothing about: the rest of a partly seen
+/// object.
+pub fn anchor_agreement(
+    clouds: &[&[Point3<f64>]],
+    anchor: &MaskView<'_>,
+    params: &GeometryParams,
+) -> Vec<[usize; 2]> {
+    let Some(probe) = Probe::new(anchor.camera, anchor.depth) else {
+        return vec![[0, 0]; clouds.len()];
+    };
+    let coarse = CoarseMask::new(
+        anchor.mask,
+        scaled_kernel(params, params.consensus.mask_dilate, anchor.mask.width) / 2,
+    );
+    let judge = |p: &Point3<f64>| match probe.look(p, params) {
+        Seen::OnSurface(x, y) if !inside(anchor.region, x, y) => [0, 0],
+        Seen::OnSurface(x, y) => [1, usize::from(coarse.covers(x, y))],
+        Seen::Through => [1, 0],
+        Seen::Nothing => [0, 0],
+    };
+    clouds
+        .iter()
+        .map(|pts| {
+            pts.par_iter()
+                .map(judge)
+                .reduce(|| [0, 0], |a, b| [a[0] + b[0], a[1] + b[1]])
         })
         .collect()
 }

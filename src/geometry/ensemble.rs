@@ -6,9 +6,8 @@ use nalgebra::Point3;
 use serde::Serialize;
 
 use super::cloud::{
-    cluster_labels, directional_chamfers, outliers_and_neighbours, subsample_even, voxel_downsample,
+    directional_chamfers, outliers_and_neighbours, subsample_even, voxel_downsample,
 };
-use super::knn::{neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours};
 use super::projection::{project_points, Projected, ProjectionError};
 use super::{Aabb, DepthMap, FrameCamera, GeometryParams, Mask, RoomLayout};
 
@@ -143,6 +142,18 @@ pub struct ViewDecision {
     pub cover: Option<f64>,
     pub kept: bool,
     pub points: usize,
+    /// Kept though the chamfer test dropped it: the chosen view saw a part of the object,
+    /// and where its frame sees this view's points they lie on its mask
+    /// (`consensus.complement_agree`).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub complements: bool,
+    /// When the rule was tried: `[seen, on_mask]`, the view's points the chosen frame
+    /// sees and those of them on its mask.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub agreement: Option<[usize; 2]>,
+    /// When the chosen mask met the frame's edge: the view's points that project past it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub beyond_cut: Option<usize>,
 }
 
 /// Result of [`fuse_views`], serialisable for the agent's trace.
@@ -228,6 +239,9 @@ pub fn chamfer_decisions<P: AsRef<[Point3<f64>]>>(
                 cover,
                 kept: within(chamfer, params.chamfer_threshold) || covers,
                 points: pts.as_ref().len(),
+                complements: false,
+                agreement: None,
+                beyond_cut: None,
             }
         })
         .collect()
@@ -274,7 +288,7 @@ pub fn fuse_clouds(
         .as_deref()
         .filter(|_| params.sor_neighbors >= 2)
         .map(|nn| (fused.as_slice(), kept_idx.as_slice(), nn));
-    let kept = drop_detached(kept, spacing_from, carve, params);
+    let kept = super::bridge::drop_detached(kept, spacing_from, carve, params);
     let (aabb, flattened) = match trimmed_box(&kept, params.box_trim) {
         Some(b) => {
             let (b, axes) = flatten_noisy_planes(b, &kept, params.plane_iqr);
@@ -293,50 +307,6 @@ pub fn fuse_clouds(
         fusion_voxel: voxel.max(0.0),
         views,
     }
-}
-
-/// A cloud, the indices of the points taken from it and its neighbour lists.
-type Known<'a> = (&'a [Point3<f64>], &'a [usize], &'a [Neighbours]);
-
-/// [`super::cloud::cluster_keep`] with cells no finer than three times the cloud's median
-/// neighbour spacing, so a sparse cloud (far away, low-resolution depth) is not cut into
-/// pieces.
-///
-/// `known`: the cloud `points` was taken from, their indices in it, and its neighbour lists
-/// for `sor_neighbors` (>= 2) nearest points, which spare most of the searches.
-///
-/// `carve` (the fusion's free-space test, with `consensus.bridge_unseen`) keeps a dropped
-/// cluster that nothing seen empty parts from the rest ([`super::bridge::keep_bridged`]).
-fn drop_detached(
-    points: Vec<Point3<f64>>,
-    known: Option<Known<'_>>,
-    carve: Option<Carve<'_>>,
-    params: &GeometryParams,
-) -> Vec<Point3<f64>> {
-    if params.cluster_voxel <= 0.0 || points.len() < 10 {
-        return points;
-    }
-    let k = params.sor_neighbors.max(2);
-    let mean = match known {
-        Some((cloud, kept, nn)) => neighbour_mean_distances_of_subset(cloud, kept, nn, k),
-        None => neighbour_mean_distances(&points, k),
-    };
-    let mut d: Vec<f64> = mean.into_iter().filter(|d| *d >= 0.0).collect();
-    d.sort_by(f64::total_cmp);
-    let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
-    let voxel = params.cluster_voxel.max(3.0 * spacing);
-    let (label, sizes) = cluster_labels(&points, voxel);
-    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
-    let mut keep: Vec<bool> = label
-        .iter()
-        .map(|&c| sizes[c] as f64 >= params.min_cluster_fraction * largest)
-        .collect();
-    if let Some(carve) = carve.filter(|_| params.consensus.bridge_unseen) {
-        if keep.iter().any(|k| !k) {
-            super::bridge::keep_bridged(&points, &label, &sizes, &mut keep, voxel, carve);
-        }
-    }
-    super::consensus::retain(&points, &keep)
 }
 
 /// The points' box, each side moved in past the `trim` fraction of the points most beyond

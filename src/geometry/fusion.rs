@@ -109,13 +109,23 @@ pub fn fuse_segmented(
     let other_pts: Vec<(usize, &[Point3<f64>])> = (0..others.len())
         .map(|k| (others[k].index, points_of(k)))
         .collect();
-    let decisions = chamfer_decisions(anchor_pts, &other_pts, anchor.partial, params);
-    let mut voters = vec![MaskView {
+    let mut decisions = chamfer_decisions(anchor_pts, &other_pts, anchor.partial, params);
+    let anchor_view = MaskView {
         camera: anchor.camera,
         depth: anchor.depth,
         mask: anchor.mask,
         region: anchor.region,
-    }];
+    };
+    if anchor.partial {
+        super::complement::complements(
+            &mut decisions,
+            &other_pts,
+            &anchor_view,
+            anchor_pts,
+            params,
+        );
+    }
+    let mut voters = vec![anchor_view];
     let mut owned = vec![voxel_downsample(anchor_pts, params.fusion_voxel)];
     for (k, (v, d)) in others.iter().zip(&decisions).enumerate() {
         if d.kept {

@@ -414,3 +414,117 @@ fn another_views_whole_object_box_bounds_a_close_up_that_ran_over_the_wall() {
     let b = out.fusion.aabb.expect("a box");
     assert!(b.max[0] < 0.6 && b.iou(&picture) > 0.7, "{b:?}");
 }
+
+#[test]
+fn a_close_up_of_a_lamps_foot_keeps_a_view_of_its_shade_that_misses_the_foot() {
+    let parts = floor_lamp();
+    let mut params = GeometryParams::default();
+    // The chosen view sees the foot and the pole up to about 0.6 m; the other sees the
+    // pole from about 0.5 m up and the shade, not the foot: each is part of the lamp, so
+    // neither the symmetric chamfer nor the anchor's cover keeps the view.
+    let anchor = shot([0.0, -0.8, 0.3], [0.0, 0.0, 0.3], &parts, LAMP, &params);
+    let shade = shot([0.0, -1.4, 1.1], [0.0, 0.0, 1.05], &parts, LAMP, &params);
+    let seen = Aabb::from_points(&shade.pts).unwrap();
+    assert!(seen.min[2] > 0.3 && seen.max[2] > 1.5, "{seen:?}");
+    let out = fuse_pair(&anchor, &shade, true, &params);
+    let d = &out.fusion.views[0];
+    assert!(d.kept && d.complements, "{d:?}");
+    let b = out.fusion.aabb.expect("a box");
+    assert!(b.max[2] > 1.5 && b.min[2] < 0.05, "{b:?}");
+    // Without the rule the box stops at the chosen view's part.
+    params.consensus.complement_agree = 0.0;
+    let out = fuse_pair(&anchor, &shade, true, &params);
+    let d = &out.fusion.views[0];
+    assert!(!d.kept && !d.complements, "{d:?}");
+    assert!(out.fusion.aabb.expect("a box").max[2] < 0.8);
+}
+
+#[test]
+fn a_close_up_of_a_lamps_foot_drops_a_view_of_the_wall_behind_it() {
+    let mut parts = floor_lamp();
+    parts.push(([-3.0, 0.3, 0.0], [3.0, 0.4, 3.0], WALL));
+    let params = GeometryParams::default();
+    let anchor = shot([0.0, -0.8, 0.3], [0.0, 0.0, 0.3], &parts, LAMP, &params);
+    // The other view's region is the wall behind the lamp, around the shade's height.
+    let wall = shot([0.0, -1.4, 1.1], [0.0, 0.0, 1.05], &parts, WALL, &params);
+    let out = fuse_pair(&anchor, &wall, true, &params);
+    let d = &out.fusion.views[0];
+    assert!(!d.kept && !d.complements, "{d:?}");
+    let b = out.fusion.aabb.expect("a box");
+    assert!(b.max[1] < 0.3, "{b:?}");
+}
+
+const SHADE: u16 = 4;
+
+/// [`floor_lamp`] with its shade a part of its own (so a view's mask can hold it alone),
+/// and, when `behind`, a second lamp 1.3 m further along the chosen view's line of sight.
+fn lamp_with_shade(behind: bool) -> Vec<Part> {
+    let mut parts = floor_lamp();
+    parts[3].2 = SHADE;
+    if behind {
+        parts.push(([-0.015, 1.285, 0.03], [0.015, 1.315, 1.3], 9));
+        parts.push(([-0.2, 1.1, 1.3], [0.2, 1.5, 1.6], SHADE + 1));
+    }
+    parts
+}
+
+#[test]
+fn a_close_up_cut_below_a_lamps_shade_keeps_a_view_of_the_shade_alone() {
+    let parts = lamp_with_shade(false);
+    let mut params = GeometryParams::default();
+    // The chosen view's top edge cuts the pole at about 0.6 m; the other view's mask holds
+    // the shade alone, 0.7 m above anything the chosen view saw and none of it in its image.
+    let anchor = shot_of(
+        [0.0, -0.8, 0.3],
+        [0.0, 0.0, 0.3],
+        &parts,
+        &[LAMP, SHADE],
+        &params,
+    );
+    let shade = shot([0.0, -1.4, 1.1], [0.0, 0.0, 1.05], &parts, SHADE, &params);
+    let out = fuse_pair(&anchor, &shade, true, &params);
+    let d = &out.fusion.views[0];
+    assert!(d.kept && d.complements, "{d:?}");
+    assert_eq!(d.agreement.map(|a| a[0]), Some(0), "{d:?}");
+    assert!(d.beyond_cut.is_some_and(|n| n >= 8), "{d:?}");
+    let b = out.fusion.aabb.expect("a box");
+    assert!(
+        b.max[2] > 1.5 && b.min[2] < 0.05 && b.max[0] > 0.15,
+        "{b:?}"
+    );
+    params.consensus.complement_agree = 0.0;
+    let out = fuse_pair(&anchor, &shade, true, &params);
+    assert!(!out.fusion.views[0].kept);
+    assert!(out.fusion.aabb.expect("a box").max[2] < 0.8);
+}
+
+#[test]
+fn a_close_up_cut_below_a_lamps_shade_drops_the_shade_of_a_lamp_behind_it() {
+    let parts = lamp_with_shade(true);
+    let params = GeometryParams::default();
+    let anchor = shot_of(
+        [0.0, -0.8, 0.3],
+        [0.0, 0.0, 0.3],
+        &parts,
+        &[LAMP, SHADE],
+        &params,
+    );
+    // The far lamp's shade also lies past the chosen view's top edge, above its pole, but
+    // over a metre from anything the chosen view saw of its lamp.
+    let far = shot(
+        [0.0, 0.6, 1.1],
+        [0.0, 1.3, 1.45],
+        &parts,
+        SHADE + 1,
+        &params,
+    );
+    assert!(Aabb::from_points(&far.pts).unwrap().min[1] > 1.0);
+    let out = fuse_pair(&anchor, &far, true, &params);
+    let d = &out.fusion.views[0];
+    assert!(!d.kept && !d.complements, "{d:?}");
+    assert!(
+        d.beyond_cut.is_some_and(|n| n >= 8),
+        "the far shade lies past the cut: {d:?}"
+    );
+    assert!(out.fusion.aabb.expect("a box").max[1] < 0.2);
+}

@@ -19,6 +19,7 @@ pub mod boxes;
 pub mod bridge;
 pub mod camera;
 pub mod cloud;
+mod complement;
 pub mod consensus;
 pub mod depth_fill;
 pub mod ensemble;
