@@ -9,7 +9,7 @@
 
 use nalgebra::Point3;
 
-use super::cloud::cluster_labels;
+use super::cloud::{cluster_labels, keep_by_fraction};
 use super::ensemble::Carve;
 use super::knn::{
     build_tree, neighbour_mean_distances, neighbour_mean_distances_of_subset, Neighbours,
@@ -53,11 +53,7 @@ pub(super) fn drop_detached(
     let spacing = d.get(d.len() / 2).copied().unwrap_or(0.0);
     let voxel = params.cluster_voxel.max(3.0 * spacing);
     let (label, sizes) = cluster_labels(&points, voxel);
-    let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
-    let mut keep: Vec<bool> = label
-        .iter()
-        .map(|&c| sizes[c] as f64 >= params.min_cluster_fraction * largest)
-        .collect();
+    let mut keep = keep_by_fraction(&label, &sizes, params.min_cluster_fraction);
     if let Some(carve) = carve.filter(|_| params.consensus.bridge_unseen) {
         if keep.iter().any(|k| !k) {
             keep_bridged(&points, &label, &sizes, &mut keep, voxel, carve);

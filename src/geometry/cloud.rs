@@ -105,6 +105,12 @@ pub fn cluster_keep(points: &[Point3<f64>], voxel: f64, min_fraction: f64) -> Ve
         return vec![true; points.len()];
     }
     let (label, sizes) = cluster_labels(points, voxel);
+    keep_by_fraction(&label, &sizes, min_fraction)
+}
+
+/// Per point (`label`: its cluster; `sizes`: each cluster's points), whether its cluster
+/// holds at least `min_fraction` of the largest cluster's points.
+pub fn keep_by_fraction(label: &[usize], sizes: &[usize], min_fraction: f64) -> Vec<bool> {
     let largest = sizes.iter().copied().max().unwrap_or(0) as f64;
     label
         .iter()

@@ -544,8 +544,10 @@ async fn a_views_candidate_that_disagrees_with_the_chosen_view_gives_way_to_its_
             c.agent.candidates.in_views_check = check;
             c.agent.geometry.chamfer_threshold = threshold;
             // The chosen view saw a part: its one-sided test takes the same threshold, so
-            // the filter passes every view or none.
+            // the filter passes every view or none; and no dropped view is kept again for
+            // agreeing with the chosen frame (`consensus.complement_agree`).
             c.agent.geometry.chamfer_cover_threshold = threshold;
+            c.agent.geometry.consensus.complement_agree = 0.0;
         })
         .await;
         // A mark at the frame's edge: the chosen view saw a part, so the views take
