@@ -74,10 +74,11 @@ pub struct ConsensusParams {
     /// chair's legs below the table top that hides its seat from every view.
     pub bridge_unseen: bool,
     /// When the chosen view saw only part of its object, a view the chamfer test dropped
-    /// is kept when the chosen frame agrees with it ([`anchor_agreement`]): of the view's
-    /// points that frame sees, at least this share lies on its mask. The view then holds
-    /// the part both saw and a part the chosen frame could not see (beyond its edge,
-    /// hidden): a floor lamp's shade above a close-up of its pole. 0 turns it off.
+    /// is kept when the chosen frame agrees with it (`geometry::complement`): of the view's
+    /// points that frame sees ([`anchor_agreement`]), at least this share lies on its mask,
+    /// or most of the view lies past the frame's edge where the chosen mask meets it. The
+    /// view then holds a part the chosen frame could not see (beyond its edge, hidden): a
+    /// floor lamp's shade above a close-up of its pole. 0 turns it off.
     pub complement_agree: f64,
 }
 

@@ -143,8 +143,8 @@ pub struct ViewDecision {
     pub kept: bool,
     pub points: usize,
     /// Kept though the chamfer test dropped it: the chosen view saw a part of the object,
-    /// and where its frame sees this view's points they lie on its mask
-    /// (`consensus.complement_agree`).
+    /// and where its frame sees this view's points they lie on its mask, or the view lies
+    /// past the edge that cut the chosen mask (`geometry::complement`).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub complements: bool,
     /// When the rule was tried: `[seen, on_mask]`, the view's points the chosen frame
