@@ -406,6 +406,7 @@ pub async fn run(
                 points: &anchor_pts,
                 region: None,
                 partial,
+                border_frac: rule.border_frac,
                 bound,
             };
             // A view that segmented only the reprojected part of a partly seen object
@@ -438,6 +439,7 @@ pub async fn run(
                         points: &c.points,
                         region: region(*i),
                         partial: false,
+                        border_frac: rule.border_frac,
                         bound,
                     }
                 })

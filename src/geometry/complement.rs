@@ -13,13 +13,13 @@
 //!   must still agree as above.
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 
 use super::camera::transform_point;
 use super::cloud::voxel_downsample;
-use super::consensus::{anchor_agreement, MaskView};
+use super::consensus::{inside, scaled_kernel, CoarseMask, MaskView, Probe, Seen};
 use super::ensemble::ViewDecision;
 use super::knn::build_tree;
-use super::partial::PartialParams;
 use super::{GeometryParams, Mask};
 
 /// Fewest points of a view the anchor's frame must see (or find past its cut) to judge it.
@@ -30,13 +30,18 @@ const MIN_SEEN: usize = 8;
 const BEYOND_SHARE: f64 = 0.5;
 
 /// Keep the views the chamfer test dropped that complement a partly seen anchor (the
-/// module documentation). `anchor_pts`: the anchor's points; `clouds`: every other view's
-/// points, in the order of `decisions`.
+/// module documentation). `anchor_ds`: the anchor's points, voxel-downsampled at
+/// `fusion_voxel`; `border_frac`: the partial rule's, for where its mask meets the frame's
+/// edge; `clouds`: every other view's points, in the order of `decisions`. The
+/// dropped views' points are downsampled the same way into `sampled` (by view), so that
+/// the fusion need not do it again for those it keeps.
 pub(super) fn complements(
     decisions: &mut [ViewDecision],
     clouds: &[(usize, &[Point3<f64>])],
     anchor: &MaskView<'_>,
-    anchor_pts: &[Point3<f64>],
+    border_frac: f64,
+    anchor_ds: &[Point3<f64>],
+    sampled: &mut [Option<Vec<Point3<f64>>>],
     params: &GeometryParams,
 ) {
     let agree = params.consensus.complement_agree;
@@ -49,16 +54,18 @@ pub(super) fn complements(
     if dropped.is_empty() {
         return;
     }
-    let sampled: Vec<Vec<Point3<f64>>> = dropped
+    for &i in &dropped {
+        sampled[i] = Some(voxel_downsample(clouds[i].1, params.fusion_voxel));
+    }
+    let refs: Vec<&[Point3<f64>]> = dropped
         .iter()
-        .map(|&i| voxel_downsample(clouds[i].1, params.fusion_voxel))
+        .map(|&i| sampled[i].as_deref().unwrap_or_default())
         .collect();
-    let refs: Vec<&[Point3<f64>]> = sampled.iter().map(Vec::as_slice).collect();
     let judged = anchor_agreement(&refs, anchor, params);
-    let margin = (PartialParams::default().border_frac * f64::from(anchor.mask.width)).ceil();
+    let margin = (border_frac * f64::from(anchor.mask.width)).ceil();
     let cut = cut_edges(anchor.mask, margin.max(1.0) as u32);
-    let anchor_tree = (!anchor_pts.is_empty() && cut.iter().any(Option::is_some))
-        .then(|| build_tree(&voxel_downsample(anchor_pts, params.fusion_voxel)));
+    let anchor_tree =
+        (!anchor_ds.is_empty() && cut.iter().any(Option::is_some)).then(|| build_tree(anchor_ds));
     for (k, &i) in dropped.iter().enumerate() {
         let [seen, on] = judged[k];
         let agrees = on as f64 >= agree * seen as f64;
@@ -161,4 +168,38 @@ fn beyond_cut(
             (n > 0 && lo <= f64::from(b) + 0.5 && hi >= f64::from(a) - 0.5).then_some(n)
         })
         .sum()
+}
+
+/// How the chosen view's frame (`anchor`) judges other views' clouds: per cloud
+/// `[seen, on_mask]`, the points it sees (on its measured surface, or seen through: it saw
+/// empty space there) and those of them on its mask (with the votes' tolerance). What the
+/// frame cannot see (beyond its image's edge or its mask's `region`, hidden behind a
+/// nearer surface, no depth reading) it says nothing about: the rest of a partly seen
+/// object.
+fn anchor_agreement(
+    clouds: &[&[Point3<f64>]],
+    anchor: &MaskView<'_>,
+    params: &GeometryParams,
+) -> Vec<[usize; 2]> {
+    let Some(probe) = Probe::new(anchor.camera, anchor.depth) else {
+        return vec![[0, 0]; clouds.len()];
+    };
+    let coarse = CoarseMask::new(
+        anchor.mask,
+        scaled_kernel(params, params.consensus.mask_dilate, anchor.mask.width) / 2,
+    );
+    let judge = |p: &Point3<f64>| match probe.look(p, params) {
+        Seen::OnSurface(x, y) if !inside(anchor.region, x, y) => [0, 0],
+        Seen::OnSurface(x, y) => [1, usize::from(coarse.covers(x, y))],
+        Seen::Through => [1, 0],
+        Seen::Nothing => [0, 0],
+    };
+    clouds
+        .iter()
+        .map(|pts| {
+            pts.par_iter()
+                .map(judge)
+                .reduce(|| [0, 0], |a, b| [a[0] + b[0], a[1] + b[1]])
+        })
+        .collect()
 }

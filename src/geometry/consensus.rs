@@ -117,7 +117,7 @@ pub struct MaskView<'a> {
 
 /// What one frame says about one point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Seen {
+pub(super) enum Seen {
     /// Out of frame, behind the camera, no depth reading, or hidden behind a nearer surface.
     Nothing,
     /// On the measured surface, at colour pixel (x, y).
@@ -145,7 +145,7 @@ impl<'a> Probe<'a> {
         })
     }
 
-    fn look(&self, p: &Point3<f64>, params: &GeometryParams) -> Seen {
+    pub(super) fn look(&self, p: &Point3<f64>, params: &GeometryParams) -> Seen {
         let Some(q) = project_one(p, &self.to_cam, self.cam, self.depth, params) else {
             return Seen::Nothing;
         };
@@ -187,7 +187,7 @@ impl<'a> Probe<'a> {
 /// A mask coarsened into square blocks: a pixel counts as covered when its block or one
 /// of the eight around it holds a mask pixel (a dilation by one to two block sides, built
 /// in one pass over the mask).
-struct CoarseMask {
+pub(super) struct CoarseMask {
     block: u32,
     w: usize,
     h: usize,
@@ -195,7 +195,7 @@ struct CoarseMask {
 }
 
 impl CoarseMask {
-    fn new(mask: &Mask, block: u32) -> Self {
+    pub(super) fn new(mask: &Mask, block: u32) -> Self {
         let block = block.max(1);
         let w = mask.width.div_ceil(block) as usize;
         let h = mask.height.div_ceil(block) as usize;
@@ -215,7 +215,7 @@ impl CoarseMask {
         }
     }
 
-    fn covers(&self, x: u32, y: u32) -> bool {
+    pub(super) fn covers(&self, x: u32, y: u32) -> bool {
         let (bx, by) = ((x / self.block) as i64, (y / self.block) as i64);
         (-1..=1).any(|dy| {
             (-1..=1).any(|dx| {
@@ -278,42 +278,8 @@ pub fn mask_votes(
         .collect()
 }
 
-/// How the chosen view's frame (`anchor`) judges other views' clouds: per cloud
-/// `[seen, on_mask]`, the points it sees (on its measured surface, or seen through: it saw
-/// empty space there) and those of them on its mask (with the votes' tolerance). What the
-/// frame cannot see (beyond its image's edge or its mask's `region`, hidden behind a
-/// nearer surface, no depth reading) it says nothing about: the rest of a partly seen
-/// object.
-pub fn anchor_agreement(
-    clouds: &[&[Point3<f64>]],
-    anchor: &MaskView<'_>,
-    params: &GeometryParams,
-) -> Vec<[usize; 2]> {
-    let Some(probe) = Probe::new(anchor.camera, anchor.depth) else {
-        return vec![[0, 0]; clouds.len()];
-    };
-    let coarse = CoarseMask::new(
-        anchor.mask,
-        scaled_kernel(params, params.consensus.mask_dilate, anchor.mask.width) / 2,
-    );
-    let judge = |p: &Point3<f64>| match probe.look(p, params) {
-        Seen::OnSurface(x, y) if !inside(anchor.region, x, y) => [0, 0],
-        Seen::OnSurface(x, y) => [1, usize::from(coarse.covers(x, y))],
-        Seen::Through => [1, 0],
-        Seen::Nothing => [0, 0],
-    };
-    clouds
-        .iter()
-        .map(|pts| {
-            pts.par_iter()
-                .map(judge)
-                .reduce(|| [0, 0], |a, b| [a[0] + b[0], a[1] + b[1]])
-        })
-        .collect()
-}
-
 /// Whether colour pixel (x, y) lies in `region` (everywhere when `None`).
-fn inside(region: Option<[f32; 4]>, x: u32, y: u32) -> bool {
+pub(super) fn inside(region: Option<[f32; 4]>, x: u32, y: u32) -> bool {
     region.is_none_or(|b| {
         let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
         x >= b[0] && x < b[2] && y >= b[1] && y < b[3]
@@ -394,7 +360,7 @@ pub(crate) fn pose_tolerance_px(params: &GeometryParams, width: u32) -> u32 {
 }
 
 /// `kernel` (pixels at the reference width) scaled to a mask `width` pixels wide, odd.
-fn scaled_kernel(params: &GeometryParams, kernel: u32, width: u32) -> u32 {
+pub(super) fn scaled_kernel(params: &GeometryParams, kernel: u32, width: u32) -> u32 {
     GeometryParams {
         erode_kernel: kernel,
         erode_reference_width: params.erode_reference_width,

@@ -27,6 +27,9 @@ pub struct SegmentedView<'a> {
     /// The mask holds only part of its object (see [`super::partial_view`]); meaningful for
     /// the anchor, where it lets the chamfer filter keep views that see more.
     pub partial: bool,
+    /// How near the frame's edge a mask pixel meets it, as a share of the image's width:
+    /// the partial-view rule's `border_frac`. The anchor's sets where its mask was cut.
+    pub border_frac: f64,
     /// Where the object can be at all (see [`super::bound`]). The anchor's box bounds the
     /// points the other views give. Another view's bound (the VLM's box of the whole
     /// object there, asked when the anchor saw a part) bounds the anchor's points and the
@@ -116,17 +119,22 @@ pub fn fuse_segmented(
         mask: anchor.mask,
         region: anchor.region,
     };
+    let anchor_ds = voxel_downsample(anchor_pts, params.fusion_voxel);
+    // Views downsampled already (by the complement test), by view.
+    let mut sampled: Vec<Option<Vec<Point3<f64>>>> = vec![None; others.len()];
     if anchor.partial {
         super::complement::complements(
             &mut decisions,
             &other_pts,
             &anchor_view,
-            anchor_pts,
+            anchor.border_frac,
+            &anchor_ds,
+            &mut sampled,
             params,
         );
     }
     let mut voters = vec![anchor_view];
-    let mut owned = vec![voxel_downsample(anchor_pts, params.fusion_voxel)];
+    let mut owned = vec![anchor_ds];
     for (k, (v, d)) in others.iter().zip(&decisions).enumerate() {
         if d.kept {
             voters.push(MaskView {
@@ -135,7 +143,11 @@ pub fn fuse_segmented(
                 mask: v.mask,
                 region: v.region,
             });
-            owned.push(voxel_downsample(points_of(k), params.fusion_voxel));
+            owned.push(
+                sampled[k]
+                    .take()
+                    .unwrap_or_else(|| voxel_downsample(points_of(k), params.fusion_voxel)),
+            );
         }
     }
     let clouds: Vec<&[Point3<f64>]> = owned.iter().map(Vec::as_slice).collect();

@@ -7,7 +7,7 @@ use super::*;
 use crate::geometry::camera::look_at_pose;
 use crate::geometry::ensemble::{find_views, mask_points, CandidateFrame};
 use crate::geometry::test_scene::{first_hit, pixel_ray};
-use crate::geometry::{Aabb, Intrinsics};
+use crate::geometry::{Aabb, Intrinsics, PartialParams};
 
 type Part = ([f64; 3], [f64; 3], u16);
 
@@ -125,6 +125,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         points: &anchor_pts,
         region: None,
         partial: false,
+        border_frac: PartialParams::default().border_frac,
         bound: None,
     };
     let side = SegmentedView {
@@ -135,6 +136,7 @@ fn a_chair_seen_from_behind_a_table_gets_its_seat_from_a_view_that_sees_it() {
         points: &side_pts,
         region: None,
         partial: false,
+        border_frac: PartialParams::default().border_frac,
         bound: None,
     };
     let frames = [(&anchor_cam, &anchor_depth), (&side_cam, &side_depth)];
@@ -203,7 +205,7 @@ impl Shot {
     /// The bound the box of this view's mask puts on its object (as a detector or the VLM
     /// would draw it: tight around what the view shows).
     fn bound(&self, p: &GeometryParams) -> Option<crate::geometry::ViewBound<'_>> {
-        use crate::geometry::{partial_view, PartialParams};
+        use crate::geometry::partial_view;
         let b = crate::geometry::morph::bounds(&self.mask, 0)?.map(|v| v as f32);
         let pp = PartialParams::default();
         let seen = partial_view(&self.mask, &self.cam, &self.depth, &pp);
@@ -221,6 +223,7 @@ impl Shot {
             points: &self.pts,
             region: None,
             partial,
+            border_frac: PartialParams::default().border_frac,
             bound: None,
         }
     }
@@ -468,19 +471,25 @@ fn lamp_with_shade(behind: bool) -> Vec<Part> {
     parts
 }
 
+/// A close-up of [`lamp_with_shade`]'s pole, its mask the lamp's pole and shade, whose
+/// top edge cuts the pole at about 0.6 m.
+fn pole_close_up(parts: &[Part], params: &GeometryParams) -> Shot {
+    shot_of(
+        [0.0, -0.8, 0.3],
+        [0.0, 0.0, 0.3],
+        parts,
+        &[LAMP, SHADE],
+        params,
+    )
+}
+
 #[test]
 fn a_close_up_cut_below_a_lamps_shade_keeps_a_view_of_the_shade_alone() {
     let parts = lamp_with_shade(false);
     let mut params = GeometryParams::default();
     // The chosen view's top edge cuts the pole at about 0.6 m; the other view's mask holds
     // the shade alone, 0.7 m above anything the chosen view saw and none of it in its image.
-    let anchor = shot_of(
-        [0.0, -0.8, 0.3],
-        [0.0, 0.0, 0.3],
-        &parts,
-        &[LAMP, SHADE],
-        &params,
-    );
+    let anchor = pole_close_up(&parts, &params);
     let shade = shot([0.0, -1.4, 1.1], [0.0, 0.0, 1.05], &parts, SHADE, &params);
     let out = fuse_pair(&anchor, &shade, true, &params);
     let d = &out.fusion.views[0];
@@ -502,13 +511,7 @@ fn a_close_up_cut_below_a_lamps_shade_keeps_a_view_of_the_shade_alone() {
 fn a_close_up_cut_below_a_lamps_shade_drops_the_shade_of_a_lamp_behind_it() {
     let parts = lamp_with_shade(true);
     let params = GeometryParams::default();
-    let anchor = shot_of(
-        [0.0, -0.8, 0.3],
-        [0.0, 0.0, 0.3],
-        &parts,
-        &[LAMP, SHADE],
-        &params,
-    );
+    let anchor = pole_close_up(&parts, &params);
     // The far lamp's shade also lies past the chosen view's top edge, above its pole, but
     // over a metre from anything the chosen view saw of its lamp.
     let far = shot(

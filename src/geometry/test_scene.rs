@@ -182,6 +182,7 @@ pub(crate) fn segmented_view<'a>(
         points: &[],
         region: None,
         partial: false,
+        border_frac: super::PartialParams::default().border_frac,
         bound: None,
     }
 }
