@@ -118,16 +118,61 @@ impl DepthSegmenter {
         grouped: &[bool],
         size: (u32, u32),
     ) -> Option<Vec<bool>> {
-        let s = g.s as usize;
-        let on_edge = |i: usize| {
-            let (x, y) = (g.x0 as usize + (i % g.w) * s, g.y0 as usize + (i / g.w) * s);
-            x == 0 || y == 0 || x + s >= size.0 as usize || y + s >= size.1 as usize
-        };
         let mut out = region.to_vec();
         let mut any = false;
         for piece in g.components(|i| grouped[i] && !region[i]) {
             let outside = piece.iter().filter(|&&i| !g.inb[i]).count();
-            if outside * 10 <= piece.len() && !piece.iter().any(|&i| on_edge(i)) {
+            if outside * 10 <= piece.len()
+                && !piece.iter().any(|&i| g.frame_edges(i, size) != [false; 4])
+            {
+                piece.iter().for_each(|&i| out[i] = true);
+                any = true;
+            }
+        }
+        any.then_some(out)
+    }
+
+    /// What the growth across the larger step (`grouped`) reaches before a background
+    /// (`region`, a surface that ran on past the box's margin), without the background:
+    /// the pieces it adds that lie nine in ten inside the box, nearer than the background
+    /// (median depth in the box), and meet the frame's edge only on sides where the box
+    /// `bbox` meets it too (`size`: the image's). A close-up of a floor lamp whose box runs
+    /// from the frame's top, which cuts its shade, to its foot at the bottom is one such
+    /// piece before the wall: its parts lie too far apart in depth for one surface, and
+    /// grown from the shade across the larger step they run on over the floor into the
+    /// walls. Where the box meets the frame, the object is cut there as well, so meeting
+    /// that edge says nothing against a piece. None when no piece is kept.
+    pub(super) fn before_background(
+        g: &Grid,
+        region: &[bool],
+        grouped: &[bool],
+        bbox: [f32; 4],
+        size: (u32, u32),
+    ) -> Option<Vec<bool>> {
+        let tol = g.s as f32;
+        let (w, h) = (size.0 as f32, size.1 as f32);
+        let box_meets = [
+            bbox[0] <= tol,
+            bbox[1] <= tol,
+            bbox[2] >= w - tol,
+            bbox[3] >= h - tol,
+        ];
+        let behind = Self::median_depth(g, region);
+        let mut out = vec![false; region.len()];
+        let mut any = false;
+        for piece in g.components(|i| grouped[i] && !region[i]) {
+            let outside = piece.iter().filter(|&&i| !g.inb[i]).count();
+            let meets_only_with_box = piece.iter().all(|&i| {
+                let e = g.frame_edges(i, size);
+                (0..4).all(|k| !e[k] || box_meets[k])
+            });
+            let mut z: Vec<f64> = piece
+                .iter()
+                .filter(|&&i| g.inb[i] && g.z[i] > 0.0)
+                .map(|&i| g.z[i])
+                .collect();
+            let nearer = !z.is_empty() && median(&mut z) < behind;
+            if outside * 10 <= piece.len() && meets_only_with_box && nearer {
                 piece.iter().for_each(|&i| out[i] = true);
                 any = true;
             }

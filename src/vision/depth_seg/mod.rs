@@ -27,7 +27,10 @@
 //! background explains no box, however well it fills one: the wall around a lamp whose box
 //! reaches the frame's edge), each is grown again across the larger step between the parts
 //! of one object (a lamp's shade in front of its pole), keeping only the pieces that adds
-//! inside the box, and not when the whole runs past the margin itself.
+//! inside the box, and not when the whole runs past the margin itself. A background's own
+//! growth so also offers what it reaches before it, without it: a lamp close-up whose box
+//! runs from the frame's top (cutting the shade) to its foot, where the shade's growth
+//! runs on over the floor into the walls.
 //! (5) Inside the box, the surface's largest piece is kept with any other piece at least half
 //! its size and of its colour (a window's panes either side of its mullion), and the pieces
 //! of its colour that a nearer surface cuts off from it (a chair's legs below the table top
@@ -229,6 +232,22 @@ impl Grid {
             out.push(piece);
         }
         out
+    }
+
+    /// Which edges of the frame (`size`: the image's) cell `i` lies on: left, top, right,
+    /// bottom.
+    fn frame_edges(&self, i: usize, size: (u32, u32)) -> [bool; 4] {
+        let s = self.s as usize;
+        let (x, y) = (
+            self.x0 as usize + (i % self.w) * s,
+            self.y0 as usize + (i / self.w) * s,
+        );
+        [
+            x == 0,
+            y == 0,
+            x + s >= size.0 as usize,
+            y + s >= size.1 as usize,
+        ]
     }
 
     /// Share of the region's cells that lie outside the box (1 for an empty region).
@@ -542,6 +561,16 @@ impl Segmenter for DepthSegmenter {
         if self.group_alternative && unexplained {
             for (m, region) in plain {
                 let (grouped, _) = self.surface_with(&g, m, cell_px, Colour::Off, Reach::Group);
+                // A background's own growth across the step reaches what stands before it.
+                let front = (background && Self::runs_past_margin(&g, &region))
+                    .then(|| Self::before_background(&g, &region, &grouped, bbox, (cw, ch)))
+                    .flatten();
+                if let Some(front) = front {
+                    let sc = score(&front, g.outside_share(&front));
+                    if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
+                        best = Some((sc, front));
+                    }
+                }
                 if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
                     // What was set aside for running past the margin does not come back
                     // joined to another surface.
