@@ -134,21 +134,23 @@ impl DepthSegmenter {
 
     /// What the growth across the larger step (`grouped`) reaches before a background
     /// (`region`, a surface that ran on past the box's margin), without the background:
-    /// the pieces it adds that lie nine in ten inside the box, nearer than the background
-    /// (median depth in the box), and meet the frame's edge only on sides where the box
-    /// `bbox` meets it too (`size`: the image's). A close-up of a floor lamp whose box runs
+    /// each piece it adds that lies nine in ten inside the box, nearer than the background
+    /// (median depth in the box), and meets the frame's edge only on sides where the box
+    /// `bbox` meets it too (`size`: the image's), as a region of its own. One object is one
+    /// piece; scored together, the bits of a window's frame before its glass would span
+    /// the box that none of them fills. A close-up of a floor lamp whose box runs
     /// from the frame's top, which cuts its shade, to its foot at the bottom is one such
     /// piece before the wall: its parts lie too far apart in depth for one surface, and
     /// grown from the shade across the larger step they run on over the floor into the
     /// walls. Where the box meets the frame, the object is cut there as well, so meeting
-    /// that edge says nothing against a piece. None when no piece is kept.
+    /// that edge says nothing against a piece.
     pub(super) fn before_background(
         g: &Grid,
         region: &[bool],
         grouped: &[bool],
         bbox: [f32; 4],
         size: (u32, u32),
-    ) -> Option<Vec<bool>> {
+    ) -> Vec<Vec<bool>> {
         let tol = g.s as f32;
         let (w, h) = (size.0 as f32, size.1 as f32);
         let box_meets = [
@@ -158,8 +160,7 @@ impl DepthSegmenter {
             bbox[3] >= h - tol,
         ];
         let behind = Self::median_depth(g, region);
-        let mut out = vec![false; region.len()];
-        let mut any = false;
+        let mut out = Vec::new();
         for piece in g.components(|i| grouped[i] && !region[i]) {
             let outside = piece.iter().filter(|&&i| !g.inb[i]).count();
             let meets_only_with_box = piece.iter().all(|&i| {
@@ -173,11 +174,12 @@ impl DepthSegmenter {
                 .collect();
             let nearer = !z.is_empty() && median(&mut z) < behind;
             if outside * 10 <= piece.len() && meets_only_with_box && nearer {
-                piece.iter().for_each(|&i| out[i] = true);
-                any = true;
+                let mut alone = vec![false; region.len()];
+                piece.iter().for_each(|&i| alone[i] = true);
+                out.push(alone);
             }
         }
-        any.then_some(out)
+        out
     }
 
     /// Is what colour took away from the depth-grown `region` (cells of `region` not in

@@ -106,6 +106,10 @@ pub struct DepthSegmenter {
     /// one in the image (a chair's legs below the table top that hides its seat; spec
     /// `hidden=off` turns it off). See [`Self::with_hidden_parts`].
     pub hidden_parts: bool,
+    /// When a background won, also score on its own each piece that the background's
+    /// growth across the larger step reaches before it (spec `front=off` turns it off).
+    /// See [`Self::before_background`].
+    pub front_parts: bool,
 }
 
 impl Default for DepthSegmenter {
@@ -129,6 +133,7 @@ impl Default for DepthSegmenter {
             weak_mode: 0.1,
             prefer_within: true,
             hidden_parts: true,
+            front_parts: true,
         }
     }
 }
@@ -137,7 +142,8 @@ impl DepthSegmenter {
     /// Options after `depth:`, comma-separated: `edges=on|off` ([`Self::block_edges`]),
     /// `colour=on|off` ([`Self::colour_alternative`]), `groups=on|off`
     /// ([`Self::group_alternative`]), `weak=on|off` ([`Self::weak_mode`]), `within=on|off`
-    /// ([`Self::prefer_within`]), `hidden=on|off` ([`Self::hidden_parts`]).
+    /// ([`Self::prefer_within`]), `hidden=on|off` ([`Self::hidden_parts`]), `front=on|off`
+    /// ([`Self::front_parts`]).
     pub fn from_spec(spec: &str) -> Result<Self> {
         let mut d = Self::default();
         for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
@@ -154,9 +160,12 @@ impl DepthSegmenter {
                 Some(("within", "off")) => d.prefer_within = false,
                 Some(("hidden", "on")) => d.hidden_parts = true,
                 Some(("hidden", "off")) => d.hidden_parts = false,
+                Some(("front", "on")) => d.front_parts = true,
+                Some(("front", "off")) => d.front_parts = false,
                 _ => bail!(
                     "unknown depth segmenter option `{part}` (expected edges=on|off, \
-                     colour=on|off, groups=on|off, weak=on|off, within=on|off or hidden=on|off)"
+                     colour=on|off, groups=on|off, weak=on|off, within=on|off, hidden=on|off or \
+                     front=on|off)"
                 ),
             }
         }
@@ -562,13 +571,12 @@ impl Segmenter for DepthSegmenter {
             for (m, region) in plain {
                 let (grouped, _) = self.surface_with(&g, m, cell_px, Colour::Off, Reach::Group);
                 // A background's own growth across the step reaches what stands before it.
-                let front = (background && Self::runs_past_margin(&g, &region))
-                    .then(|| Self::before_background(&g, &region, &grouped, bbox, (cw, ch)))
-                    .flatten();
-                if let Some(front) = front {
-                    let sc = score(&front, g.outside_share(&front));
-                    if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
-                        best = Some((sc, front));
+                if self.front_parts && background && Self::runs_past_margin(&g, &region) {
+                    for front in Self::before_background(&g, &region, &grouped, bbox, (cw, ch)) {
+                        let sc = score(&front, g.outside_share(&front));
+                        if best.as_ref().is_none_or(|(s, _)| sc > *s + 1e-9) {
+                            best = Some((sc, front));
+                        }
                     }
                 }
                 if let Some(whole) = Self::with_parts(&g, &region, &grouped, (cw, ch)) {
