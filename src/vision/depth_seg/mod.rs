@@ -44,11 +44,13 @@ use crate::geometry::camera::transform_point;
 use crate::geometry::mask::Mask;
 
 mod cells;
+mod grid;
 mod growth;
 mod hidden;
 
 pub(crate) use cells::same_hue;
 
+use grid::Grid;
 use growth::Reach;
 
 /// Parameters of the depth segmenter.
@@ -170,106 +172,6 @@ impl DepthSegmenter {
             }
         }
         Ok(d)
-    }
-}
-
-/// A grid of sample cells (stride `s` colour pixels, at least one depth pixel) over the box
-/// plus a margin.
-struct Grid {
-    x0: u32,
-    y0: u32,
-    s: u32,
-    w: usize,
-    h: usize,
-    /// depth in metres (0 = none)
-    z: Vec<f64>,
-    /// height along the output frame's z axis
-    height: Vec<f64>,
-    /// horizontal distance from the camera's centre in the output frame
-    reach: Vec<f64>,
-    rgb: Vec<[u8; 3]>,
-    /// cell centre inside the query box
-    inb: Vec<bool>,
-    /// grid rectangle of the box: gx0..gx1, gy0..gy1
-    b: [usize; 4],
-    /// Cells on a depth edge (see [`DepthSegmenter::mark_edges`]): never grown into.
-    edge: Vec<bool>,
-}
-
-impl Grid {
-    fn neighbours(&self, i: usize) -> [Option<usize>; 4] {
-        let (x, y) = (i % self.w, i / self.w);
-        [
-            (x > 0).then(|| i - 1),
-            (x + 1 < self.w).then(|| i + 1),
-            (y > 0).then(|| i - self.w),
-            (y + 1 < self.h).then(|| i + self.w),
-        ]
-    }
-
-    /// The 4-connected components of the cells for which `member` holds, each as its
-    /// cells, in the order of their first cell in the grid.
-    fn components(&self, member: impl Fn(usize) -> bool) -> Vec<Vec<usize>> {
-        self.joined(member, |_, _| true)
-    }
-
-    /// [`Self::components`] where neighbours `i`, `j` join only when `join(i, j)` holds.
-    fn joined(
-        &self,
-        member: impl Fn(usize) -> bool,
-        join: impl Fn(usize, usize) -> bool,
-    ) -> Vec<Vec<usize>> {
-        let mut seen = vec![false; self.z.len()];
-        let mut out = Vec::new();
-        for start in 0..self.z.len() {
-            if seen[start] || !member(start) {
-                continue;
-            }
-            seen[start] = true;
-            let mut piece = vec![start];
-            let mut k = 0;
-            while k < piece.len() {
-                let i = piece[k];
-                for j in self.neighbours(i).into_iter().flatten() {
-                    if !seen[j] && member(j) && join(i, j) {
-                        seen[j] = true;
-                        piece.push(j);
-                    }
-                }
-                k += 1;
-            }
-            out.push(piece);
-        }
-        out
-    }
-
-    /// Which edges of the frame (`size`: the image's) cell `i` lies on: left, top, right,
-    /// bottom.
-    fn frame_edges(&self, i: usize, size: (u32, u32)) -> [bool; 4] {
-        let s = self.s as usize;
-        let (x, y) = (
-            self.x0 as usize + (i % self.w) * s,
-            self.y0 as usize + (i / self.w) * s,
-        );
-        [
-            x == 0,
-            y == 0,
-            x + s >= size.0 as usize,
-            y + s >= size.1 as usize,
-        ]
-    }
-
-    /// Share of the region's cells that lie outside the box (1 for an empty region).
-    fn outside_share(&self, region: &[bool]) -> f64 {
-        let total = region.iter().filter(|&&b| b).count();
-        let outside = (0..region.len())
-            .filter(|&i| region[i] && !self.inb[i])
-            .count();
-        if total == 0 {
-            1.0
-        } else {
-            outside as f64 / total as f64
-        }
     }
 }
 
