@@ -65,14 +65,17 @@ const LAYER_SIGNIFICANCE: f64 = 3.0;
 /// The object's front face on `axis`: the `median` of its points, unless a separate layer
 /// lies before it (on the camera's side `toward`, +1 or -1): a local maximum of the
 /// points' 1 cm histogram (smoothed 1-2-1, within `reach` of the median) whose three bins
-/// hold at least `share` of the points, with a valley between it and the main layer, and
-/// that stands out of that valley by more than counting noise: its three bins exceed the
-/// emptiest three between the two by [`LAYER_SIGNIFICANCE`] times the square root of the
-/// latter (a surface, not the tail of noisy readings: a far picture's few measured points
-/// scatter over the centimetres before it, and any bump of them would pass the share). The
-/// nearest such layer wins. A picture or a door is one layer, and its front is its median;
-/// a window's frame stands a few centimetres before its glass, and the glass, the larger
-/// part, would put the front behind the frame. `share` 0 gives the median.
+/// hold at least `share` of the points and that stands out of the readings between it and
+/// the main layer by more than counting noise: its three bins exceed the emptiest three
+/// between the two by [`LAYER_SIGNIFICANCE`] times the square root of the latter (a
+/// surface, not the tail of noisy readings: a far picture's few measured points scatter
+/// over the centimetres before it, and any bump of them would pass the share; one noisy
+/// plane's readings thin out away from it, so no bump of them clears its floor). The
+/// readings between need not fall to a valley: a view from the side sees the inner faces
+/// of a window's frame, which fill the centimetres between the frame's face and the glass.
+/// The nearest such layer wins. A picture or a door is one layer, and its front is its
+/// median; a window's frame stands a few centimetres before its glass, and the glass, the
+/// larger part, would put the front behind the frame. `share` 0 gives the median.
 fn front_layer(
     points: &[Point3<f64>],
     axis: usize,
@@ -108,9 +111,8 @@ fn front_layer(
     let Some(main) = (0..n).max_by_key(|&k| smooth[k]) else {
         return median;
     };
-    // A layer before the main one, apart from it: a local maximum with its share, and a
-    // valley between the two below half its height (noise spreads one surface over
-    // several bins, with no valley).
+    // A layer before the main one: a local maximum with its share, standing out of the
+    // readings between the two.
     let pos = |k: usize| lo + k as f64 * BIN;
     let three = |k: usize| (at(k as isize - 1) + at(k as isize) + at(k as isize + 1)) as f64;
     (0..n)
@@ -126,7 +128,6 @@ fn front_layer(
                 && three(k) >= need
                 && (k == 0 || smooth[k - 1] < s)
                 && (k + 1 == n || smooth[k + 1] <= s)
-                && smooth[a..=b].iter().any(|&v| 2 * v < s)
                 && three(k) - floor > LAYER_SIGNIFICANCE * floor.sqrt()
         })
         .map(pos)
@@ -142,7 +143,7 @@ fn quartiles(points: &[Point3<f64>], a: usize) -> (f64, f64, f64) {
 }
 
 /// The wall behind the plane `slab` (zero extent on `axis`): among the context points in the
-/// ring of width `margin` around its footprint and between 1 cm and `planar_max_depth`
+/// ring of width `margin` around its footprint and from `nearest` to `planar_max_depth`
 /// behind it (on the `sign` side), the `layer`-thick slice holding the most points, if it
 /// holds at least `min_points` and reaches past the footprint sideways at the footprint's
 /// height; its median coordinate. The densest slice, not the nearest: the plane's own noisy
@@ -151,6 +152,7 @@ fn densest_layer(
     slab: &Aabb,
     context: &[Point3<f64>],
     (axis, sign): (usize, f64),
+    nearest: f64,
     p: &SupportParams,
 ) -> Option<f64> {
     let others = [(axis + 1) % 3, (axis + 2) % 3];
@@ -167,7 +169,7 @@ fn densest_layer(
         .iter()
         .filter(|q| in_ring(q))
         .map(|q| sign * (q[axis] - front))
-        .filter(|g| *g >= MIN_DEPTH && *g <= p.planar_max_depth)
+        .filter(|g| *g >= nearest && *g <= p.planar_max_depth)
         .collect();
     gaps.sort_by(f64::total_cmp);
     let (mut best, mut best_n) = (None, 0usize);
@@ -229,7 +231,8 @@ fn reading_noise(points: &[Point3<f64>], axis: usize, cell: f64) -> f64 {
     median(&mut mads)
 }
 
-/// Nearest a wall may be behind a plane (m): nearer, it is the plane's own noise.
+/// How far apart a plane and the wall behind it must be to be told apart (m): nearer, the
+/// difference is the readings' noise.
 const MIN_DEPTH: f64 = 0.01;
 
 /// Distance (m) within which a point counts as lying on one of the room's walls: points
@@ -353,10 +356,25 @@ pub fn snap_planar_to_wall(
                 .position(|&n| 2 * n >= anchor.len())
                 .map(|k| (k, at_centre[k]))
         };
+        // The wall's readings are looked for from a centimetre behind the plane, past the
+        // object's own fringe. But a wall found that near the object's main layer (its
+        // median: a window's glass, not its frame before it) that its readings reach the
+        // cut (within a centimetre plus the readings' noise, at least a centimetre) may
+        // lie nearer still: a window's glass sits a centimetre before its wall, and the
+        // cut kept only the far part of the wall's readings. The wall is then looked for
+        // again from a centimetre before that layer, whose readings are the wall's own.
+        let main = sign * (qs[a].1 - front);
+        let behind = |w: f64| {
+            if sign * (w - qs[a].1) < MIN_DEPTH + noise.max(MIN_DEPTH) {
+                densest_layer(&slab, context, (a, sign), main - MIN_DEPTH, p).unwrap_or(w)
+            } else {
+                w
+            }
+        };
         let (wall, room_wall, on_wall) = match placed_on() {
             Some((k, w)) => (Some(w), true, Some(k)),
-            None => match densest_layer(&slab, context, (a, sign), p) {
-                Some(w) => (Some(w), false, None),
+            None => match densest_layer(&slab, context, (a, sign), MIN_DEPTH, p) {
+                Some(w) => (Some(behind(w)), false, None),
                 None => (from_room(), true, None),
             },
         };

@@ -547,3 +547,72 @@ fn a_far_picture_whose_readings_scatter_wider_than_a_plane_is_still_one() {
         "{b:?}"
     );
 }
+
+#[test]
+fn a_frame_seen_over_its_inner_faces_is_still_the_front() {
+    // A window's close-up from the side (props dev 0543, object 2, per 1 cm): the glass
+    // 1 cm before the wall, the frame's inner faces spread evenly over the 6 cm before
+    // it, then the frame's face. The readings between never fall to half the face's.
+    let window = layers(&[
+        (0.005, 4965),
+        (0.015, 257),
+        (0.025, 248),
+        (0.035, 261),
+        (0.045, 251),
+        (0.055, 259),
+        (0.065, 508),
+        (0.075, 115),
+    ]);
+    let front = front_layer(&window, 1, 1.0, 0.005, 0.02, 0.15);
+    assert!((front - 0.065).abs() < 0.006, "{front}");
+    // Without the face, the inner faces alone are no layer: the front is the glass.
+    let faces = layers(&[
+        (0.005, 4965),
+        (0.015, 257),
+        (0.025, 248),
+        (0.035, 261),
+        (0.045, 251),
+        (0.055, 259),
+    ]);
+    let front = front_layer(&faces, 1, 1.0, 0.005, 0.02, 0.15);
+    assert!((front - 0.005).abs() < 0.006, "{front}");
+}
+
+#[test]
+fn the_wall_behind_glass_a_centimetre_before_it_is_not_put_behind_its_readings() {
+    // Far view: the glass at y = 6.10, 1 cm before the wall at 6.11, both read with noise
+    // of 2 cm standard deviation (bell-shaped, up to ±6 cm); the frame is not told apart.
+    // Only the wall's readings a centimetre behind the glass's median would be its far
+    // half, and put the wall about 1.5 cm too far.
+    let bell = |points: Vec<Point3<f64>>, k: u64| -> Vec<Point3<f64>> {
+        points
+            .into_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let n: f64 = (0..3).map(|j| jitter(i, k + j)).sum();
+                Point3::new(p.x, p.y + 0.02 * n, p.z)
+            })
+            .collect()
+    };
+    let window = bell(plane_y(6.10, (0.7, 1.9), (1.0, 2.1), 0.0, None), 11);
+    let wall = bell(
+        plane_y(
+            6.11,
+            (0.4, 2.2),
+            (0.7, 2.4),
+            0.0,
+            Some([0.7, 1.9, 1.0, 2.1]),
+        ),
+        21,
+    );
+    let fused = Aabb::new([0.68, 5.95, 0.98], [1.92, 6.2, 2.12]);
+    let gp = GeometryParams::default();
+    let (b, snaps) = snap_planar_to_wall(&fused, &window, &wall, None, [1.3, 3.0, 1.5], 0.05, &gp);
+    let wall_found = snaps[0].wall.expect("a wall");
+    assert!((wall_found - 6.11).abs() < 0.006, "{snaps:?}");
+    // The glass is nearer the wall than any window is deep: the class's depth before it.
+    assert!(
+        (b.max[1] - wall_found).abs() < 1e-9 && (b.min[1] - (wall_found - 0.05)).abs() < 1e-9,
+        "{b:?}"
+    );
+}
