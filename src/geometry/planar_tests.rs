@@ -553,27 +553,19 @@ fn a_frame_seen_over_its_inner_faces_is_still_the_front() {
     // A window's close-up from the side (props dev 0543, object 2, per 1 cm): the glass
     // 1 cm before the wall, the frame's inner faces spread evenly over the 6 cm before
     // it, then the frame's face. The readings between never fall to half the face's.
-    let window = layers(&[
+    let inner = [
         (0.005, 4965),
         (0.015, 257),
         (0.025, 248),
         (0.035, 261),
         (0.045, 251),
         (0.055, 259),
-        (0.065, 508),
-        (0.075, 115),
-    ]);
+    ];
+    let window = layers(&[&inner[..], &[(0.065, 508), (0.075, 115)]].concat());
     let front = front_layer(&window, 1, 1.0, 0.005, 0.02, 0.15);
     assert!((front - 0.065).abs() < 0.006, "{front}");
     // Without the face, the inner faces alone are no layer: the front is the glass.
-    let faces = layers(&[
-        (0.005, 4965),
-        (0.015, 257),
-        (0.025, 248),
-        (0.035, 261),
-        (0.045, 251),
-        (0.055, 259),
-    ]);
+    let faces = layers(&inner);
     let front = front_layer(&faces, 1, 1.0, 0.005, 0.02, 0.15);
     assert!((front - 0.005).abs() < 0.006, "{front}");
 }
