@@ -1,4 +1,5 @@
-//! Shared pre/post-processing: resizing, box IoU and per-class non-maximum suppression.
+//! Shared pre/post-processing: resizing, box IoU, per-class non-maximum suppression, and
+//! the 4-neighbours of a cell of a row-major grid.
 
 use anyhow::{anyhow, Result};
 use fast_image_resize::{images::Image, FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer};
@@ -69,6 +70,18 @@ pub fn clamp_box(b: [f32; 4], w: u32, h: u32) -> Option<[f32; 4]> {
         b[3].clamp(0.0, h),
     ];
     (r[2] > r[0] && r[3] > r[1]).then_some(r)
+}
+
+/// The 4-neighbours of cell `i` of a row-major grid `w` cells wide and `h` high (left,
+/// right, above, below; `None` past the grid's edge).
+pub fn grid_neighbours(i: usize, w: usize, h: usize) -> [Option<usize>; 4] {
+    let (x, y) = (i % w, i / w);
+    [
+        (x > 0).then(|| i - 1),
+        (x + 1 < w).then(|| i + 1),
+        (y > 0).then(|| i - w),
+        (y + 1 < h).then(|| i + w),
+    ]
 }
 
 #[cfg(test)]

@@ -236,13 +236,7 @@ pub(super) fn dominant_colour(g: &Grid, cells: &[usize]) -> [f64; 3] {
 impl Grid {
     /// The 4-neighbours of cell `i` (left, right, above, below; `None` past the grid's edge).
     pub(super) fn neighbours(&self, i: usize) -> [Option<usize>; 4] {
-        let (x, y) = (i % self.w, i / self.w);
-        [
-            (x > 0).then(|| i - 1),
-            (x + 1 < self.w).then(|| i + 1),
-            (y > 0).then(|| i - self.w),
-            (y + 1 < self.h).then(|| i + self.w),
-        ]
+        crate::vision::common::grid_neighbours(i, self.w, self.h)
     }
 }
 

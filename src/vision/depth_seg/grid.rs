@@ -25,13 +25,7 @@ pub(super) struct Grid {
 
 impl Grid {
     pub(super) fn neighbours(&self, i: usize) -> [Option<usize>; 4] {
-        let (x, y) = (i % self.w, i / self.w);
-        [
-            (x > 0).then(|| i - 1),
-            (x + 1 < self.w).then(|| i + 1),
-            (y > 0).then(|| i - self.w),
-            (y + 1 < self.h).then(|| i + self.w),
-        ]
+        crate::vision::common::grid_neighbours(i, self.w, self.h)
     }
 
     /// The 4-connected components of the cells for which `member` holds, each as its
