@@ -439,3 +439,7 @@ pub fn snap_planar_to_wall(
 #[cfg(test)]
 #[path = "planar_tests.rs"]
 mod tests;
+
+#[cfg(test)]
+#[path = "planar_front_tests.rs"]
+mod front_tests;
